@@ -1,0 +1,281 @@
+"""The path integrator: one kernel body, compiled per scene with only the code that scene needs.
+
+``make_render_kernel(features)`` returns a kernel specialised at compile time (``wp.static``) on which primitives,
+materials, view and roulette rule the scene uses; ``module="unique"`` gives each variant its own small module so a
+new variant never rebuilds another. The kernel adds one sample per pixel, for one pass over a set of rows, into the
+accumulators.
+
+Estimator (equal in expectation to Mitsuba's ``path`` integrator, which adds MIS):
+emission is counted on camera rays and after mirror bounces; at diffuse hits next-event estimation takes K uniform
+samples on every rectangle light, and emission found by the following diffuse bounce is not counted again.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import warp as wp
+
+from kernels.camera import camera_ray
+from kernels.mesh import mesh_hit, smooth_normal, sphere_hit
+from kernels.offset import max_abs, offset_origin
+from kernels.rng import rand4
+from kernels.sampling import reflect, sample_cosine_around, sample_parallelogram
+from kernels.sphere import SELF_FAR, SELF_NONE, SELF_SKIP, ray_sphere
+from kernels.types import CameraData, Hit, PassParams, SceneData
+
+VIEW_RADIANCE = 0
+VIEW_DIRECTION = 1
+VIEW_NORMAL = 2
+VIEWS = {"radiance": VIEW_RADIANCE, "direction": VIEW_DIRECTION, "normal": VIEW_NORMAL}
+
+RR_NONE = 0
+RR_SEED = 1  # the seed's rule: after the first bounce stop with probability 0.2, survivors / 0.8
+RR_THROUGHPUT = 2  # Mitsuba's: from rr_depth on, continue with probability min(max(beta), 0.95)
+RR_RULES = {"none": RR_NONE, "seed": RR_SEED, "throughput": RR_THROUGHPUT}
+
+SEED_RR_LAMBDA = wp.constant(0.2)
+INF = wp.constant(3.0e38)
+
+
+@dataclass(frozen=True)
+class Features:
+    """What one compiled variant contains. Two scenes with equal features share a kernel."""
+
+    meshes: bool
+    spheres: bool
+    mirrors: bool
+    smooth_normals: bool
+    lights: bool
+    view: int = VIEW_RADIANCE
+    rr: int = RR_THROUGHPUT
+
+
+@wp.func
+def self_mode(origin_sphere: int, i: int, origin_normal: wp.vec3, d: wp.vec3) -> int:
+    """How sphere ``i`` treats a ray that started on sphere ``origin_sphere`` with outward normal there."""
+    if i != origin_sphere:
+        return SELF_NONE
+    if wp.dot(d, origin_normal) > 0.0:
+        return SELF_SKIP
+    return SELF_FAR
+
+
+@wp.func
+def occluded_spheres(
+    scene: SceneData, o: wp.vec3, d: wp.vec3, tmax: float, origin_sphere: int, origin_normal: wp.vec3
+) -> bool:
+    """Any sphere hit in [0, tmax) of the shadow ray?"""
+    for i in range(scene.num_spheres):
+        if ray_sphere(o, d, scene.sphere_center[i], scene.sphere_radius[i], tmax, self_mode(origin_sphere, i, origin_normal, d)) >= 0.0:
+            return True
+    return False
+
+
+@wp.func
+def light_sample_scale(scene: SceneData, light: int) -> float:
+    """Coordinate magnitude of points on light ``light`` (for offsetting shadow-ray ends)."""
+    return max_abs(scene.light_center[light]) + wp.length(scene.light_half_u[light]) + wp.length(scene.light_half_v[light])
+
+
+def make_render_kernel(features: Features):
+    """Compile-time specialised integrator kernel for ``features`` (see module docstring)."""
+    HAS_MESH = features.meshes
+    HAS_SPHERES = features.spheres
+    HAS_MIRROR = features.mirrors
+    HAS_SMOOTH = features.smooth_normals
+    HAS_LIGHTS = features.lights
+    VIEW = features.view
+    RR = features.rr
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def render_pass(
+        scene: SceneData,
+        cam: CameraData,
+        params: PassParams,
+        # outputs
+        accum: wp.array(dtype=wp.vec3),
+        accum_sq: wp.array(dtype=wp.vec3),
+        discarded: wp.array(dtype=wp.int32),
+    ):
+        tid = wp.tid()
+        col = tid % cam.width
+        row = params.row_offset + (tid // cam.width) * params.row_stride
+        if row >= cam.height:
+            return
+        pixel = row * cam.width + col
+        key = wp.vec3ui(wp.uint32(pixel), params.pass_index, params.seed)
+
+        # ---------------- camera ray ----------------
+        jitter = rand4(key, wp.uint32(0))
+        ray = camera_ray(cam, col, row, jitter[0], jitter[1])
+        o = ray.o
+        d = ray.d
+        tmax = ray.tmax
+        dim = wp.uint32(1)
+
+        L = wp.vec3(0.0)  # radiance gathered so far
+        beta = wp.vec3(1.0)  # path throughput
+        depth = int(0)  # index of the current path vertex (0: first hit)
+        count_emission = bool(True)  # camera ray or mirror bounce: emission at the next hit counts
+        origin_sphere = int(-1)  # sphere the current ray starts on, -1 if none
+        origin_normal = wp.vec3(0.0)  # outward normal of that sphere at the origin
+
+        if wp.static(VIEW == VIEW_DIRECTION):
+            L = 0.5 * d + wp.vec3(0.5)
+        else:
+            while True:
+                # ---------------- nearest hit ----------------
+                hit = Hit()
+                hit.t = tmax
+                found = bool(False)
+                if wp.static(HAS_MESH):
+                    q = wp.mesh_query_ray(scene.mesh, o, d, tmax)
+                    if q.result:
+                        hit = mesh_hit(scene, o, d, q)
+                        if wp.static(HAS_SMOOTH):
+                            hit.ns = smooth_normal(scene, q.face, q.u, q.v, hit.ng)
+                        found = True
+                if wp.static(HAS_SPHERES):
+                    for i in range(scene.num_spheres):
+                        t = ray_sphere(o, d, scene.sphere_center[i], scene.sphere_radius[i], hit.t,
+                                       self_mode(origin_sphere, i, origin_normal, d))
+                        if t >= 0.0:
+                            hit = sphere_hit(scene, o, d, t, i)
+                            found = True
+                if not found:
+                    break  # the sky is black
+
+                if wp.static(VIEW == VIEW_NORMAL):
+                    L = 0.5 * hit.ns + wp.vec3(0.5)
+                    break
+
+                front = wp.dot(d, hit.ng) < 0.0
+
+                # ---------------- emission seen directly or through mirrors ----------------
+                if wp.static(HAS_LIGHTS):
+                    if count_emission and hit.light >= 0 and front:
+                        if depth > 0 or params.hide_emitters == 0:
+                            L += wp.cw_mul(beta, scene.light_radiance[hit.light])
+
+                if params.max_depth >= 0 and depth + 1 >= params.max_depth:
+                    break
+
+                # ---------------- surface frame ----------------
+                mat = hit.material
+                if not front and scene.mat_twosided[mat] == 0:
+                    break  # one-sided materials are black from behind, as in Mitsuba
+                ng = hit.ng
+                ns = hit.ns
+                if not front:
+                    ng = -ng
+                    ns = -ns
+                if wp.dot(ns, d) >= 0.0:
+                    break  # the shading normal faces away from the viewer: no reflection, as in Mitsuba
+                albedo = scene.mat_rgb[mat]
+
+                is_mirror = bool(False)
+                if wp.static(HAS_MIRROR):
+                    is_mirror = scene.mat_kind[mat] == 1
+
+                wi = wp.vec3(0.0)
+                if is_mirror:
+                    # ---------------- mirror: perfect reflection ----------------
+                    wi = reflect(d, ns)
+                    count_emission = True
+                else:
+                    # ---------------- diffuse: next-event estimation ----------------
+                    if wp.static(HAS_LIGHTS):
+                        Ld = wp.vec3(0.0)
+                        o_scale = hit.scale
+                        for l in range(scene.num_lights):
+                            ln = scene.light_normal[l]
+                            l_scale = light_sample_scale(scene, l)
+                            Ll = float(0.0)
+                            for k in range(params.light_samples):
+                                u = rand4(key, dim)
+                                dim += wp.uint32(1)
+                                y = sample_parallelogram(scene.light_center[l], scene.light_half_u[l], scene.light_half_v[l], u[0], u[1])
+                                to_y = y - hit.p
+                                dist2 = wp.dot(to_y, to_y)
+                                if dist2 <= 0.0:
+                                    continue
+                                w = to_y / wp.sqrt(dist2)
+                                cos_x = wp.dot(ns, w)
+                                cos_y = -wp.dot(ln, w)
+                                if cos_x <= 0.0 or cos_y <= 0.0 or wp.dot(ng, w) <= 0.0:
+                                    continue
+                                # shadow ray between the two offset end points, stopping short of the light
+                                so = offset_origin(hit.p, ng, o_scale, w)
+                                se = offset_origin(y, ln, l_scale, -w)
+                                seg = se - so
+                                seg_len = wp.length(seg)
+                                if seg_len <= 0.0:
+                                    continue
+                                sd = seg / seg_len
+                                blocked = bool(False)
+                                if wp.static(HAS_MESH):
+                                    blocked = wp.mesh_query_ray_anyhit(scene.mesh, so, sd, seg_len)
+                                if wp.static(HAS_SPHERES):
+                                    if not blocked:
+                                        blocked = occluded_spheres(scene, so, sd, seg_len, hit.sphere, hit.ng)
+                                if not blocked:
+                                    Ll += cos_x * cos_y / dist2
+                            Ld += scene.light_radiance[l] * (Ll * scene.light_area[l] / float(params.light_samples))
+                        L += wp.cw_mul(wp.cw_mul(beta, albedo), Ld) * (1.0 / wp.pi)
+
+                    # ---------------- diffuse: cosine-weighted bounce ----------------
+                    u = rand4(key, dim)
+                    dim += wp.uint32(1)
+                    wi = sample_cosine_around(ns, u[0], u[1])
+                    count_emission = False
+
+                if wp.dot(wi, ng) <= 0.0:
+                    break  # the new direction would go through the surface
+                beta = wp.cw_mul(beta, albedo)
+                depth += 1
+
+                # ---------------- Russian roulette ----------------
+                if wp.static(RR == RR_SEED):
+                    if depth >= 2:
+                        u = rand4(key, dim)
+                        dim += wp.uint32(1)
+                        if u[0] < SEED_RR_LAMBDA:
+                            break
+                        beta = beta / (1.0 - SEED_RR_LAMBDA)
+                if wp.static(RR == RR_THROUGHPUT):
+                    if depth >= params.rr_depth:
+                        q_rr = wp.min(wp.max(beta[0], wp.max(beta[1], beta[2])), 0.95)
+                        u = rand4(key, dim)
+                        dim += wp.uint32(1)
+                        if u[0] >= q_rr:
+                            break
+                        beta = beta / q_rr
+                if wp.max(beta[0], wp.max(beta[1], beta[2])) <= 0.0:
+                    break
+
+                # ---------------- spawn the next ray ----------------
+                o = offset_origin(hit.p, ng, hit.scale, wi)
+                d = wi
+                tmax = INF
+                origin_sphere = hit.sphere
+                origin_normal = hit.ng
+
+        # ---------------- film ----------------
+        if wp.isfinite(L):
+            accum[pixel] = accum[pixel] + L
+            accum_sq[pixel] = accum_sq[pixel] + wp.cw_mul(L, L)
+        else:
+            wp.atomic_add(discarded, 0, 1)
+
+    return render_pass
+
+
+_KERNELS: dict[Features, object] = {}
+
+
+def render_kernel(features: Features):
+    """The kernel for ``features``, built once per process (Warp's disk cache makes later processes fast)."""
+    if features not in _KERNELS:
+        _KERNELS[features] = make_render_kernel(features)
+    return _KERNELS[features]

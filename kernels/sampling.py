@@ -1,0 +1,40 @@
+"""Sampling routines and frames. Directions are unit vectors; local frames have the normal as +z."""
+
+import warp as wp
+
+
+@wp.func
+def orthonormal_basis(n: wp.vec3) -> wp.mat33:
+    """Columns (t, b, n): a right-handed frame around unit ``n`` (Duff et al. 2017, branchless, no singularity)."""
+    sign = wp.where(n[2] >= 0.0, 1.0, -1.0)
+    a = -1.0 / (sign + n[2])
+    b = n[0] * n[1] * a
+    t = wp.vec3(1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0])
+    bt = wp.vec3(b, sign + n[1] * n[1] * a, -n[1])
+    return wp.mat33(t[0], bt[0], n[0], t[1], bt[1], n[1], t[2], bt[2], n[2])
+
+
+@wp.func
+def cosine_hemisphere(u1: float, u2: float) -> wp.vec3:
+    """Cosine-weighted direction about +z (pdf cos(theta)/pi), as the seed: phi = 2 pi u1, cos(theta) = sqrt(u2)."""
+    phi = 2.0 * wp.pi * u1
+    r = wp.sqrt(1.0 - u2)
+    return wp.vec3(r * wp.cos(phi), r * wp.sin(phi), wp.sqrt(u2))
+
+
+@wp.func
+def sample_cosine_around(n: wp.vec3, u1: float, u2: float) -> wp.vec3:
+    """Cosine-weighted unit direction in the hemisphere of unit normal ``n``."""
+    return wp.normalize(orthonormal_basis(n) * cosine_hemisphere(u1, u2))
+
+
+@wp.func
+def sample_parallelogram(center: wp.vec3, half_u: wp.vec3, half_v: wp.vec3, u1: float, u2: float) -> wp.vec3:
+    """Uniform point on ``center + s half_u + t half_v``, s, t in [-1, 1] (pdf 1 / area)."""
+    return center + (2.0 * u1 - 1.0) * half_u + (2.0 * u2 - 1.0) * half_v
+
+
+@wp.func
+def reflect(d: wp.vec3, n: wp.vec3) -> wp.vec3:
+    """Mirror direction of incoming ``d`` about unit ``n``: d - 2 (d.n) n."""
+    return d - 2.0 * wp.dot(d, n) * n

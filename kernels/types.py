@@ -1,0 +1,78 @@
+"""Structs that carry the scene, the camera and one pass's parameters into the kernels."""
+
+import warp as wp
+
+
+@wp.struct
+class CameraData:
+    """Pinhole camera: local +z forward, local +x image left (Mitsuba's convention)."""
+
+    origin: wp.vec3
+    to_world: wp.mat33  # local -> world, linear part of the sensor's to_world
+    tan_x: float  # tan(half fov) along image x
+    tan_y: float
+    near_clip: float
+    far_clip: float
+    width: int
+    height: int
+
+
+@wp.struct
+class SceneData:
+    """Every primitive of a scene. Arrays of absent kinds are empty (their code is compiled out)."""
+
+    mesh: wp.uint64  # one wp.Mesh holding every triangle
+    points: wp.array(dtype=wp.vec3)
+    indices: wp.array(dtype=wp.int32)  # 3 per face
+    face_material: wp.array(dtype=wp.int32)
+    face_light: wp.array(dtype=wp.int32)  # area light index, -1 if the face does not emit
+    corner_normals: wp.array(dtype=wp.vec3)  # 3 per face: shading normals, the face normal on flat faces
+    sphere_center: wp.array(dtype=wp.vec3)
+    sphere_radius: wp.array(dtype=float)
+    sphere_material: wp.array(dtype=wp.int32)
+    num_spheres: int
+    mat_kind: wp.array(dtype=wp.int32)  # 0 diffuse, 1 mirror
+    mat_rgb: wp.array(dtype=wp.vec3)
+    mat_twosided: wp.array(dtype=wp.int32)
+    light_center: wp.array(dtype=wp.vec3)
+    light_half_u: wp.array(dtype=wp.vec3)
+    light_half_v: wp.array(dtype=wp.vec3)
+    light_normal: wp.array(dtype=wp.vec3)
+    light_radiance: wp.array(dtype=wp.vec3)
+    light_area: wp.array(dtype=float)
+    num_lights: int
+
+
+@wp.struct
+class PassParams:
+    """One sample pass over a set of image rows (rows row_offset, row_offset + row_stride, ...)."""
+
+    seed: wp.uint32
+    pass_index: wp.uint32
+    row_offset: int
+    row_stride: int
+    max_depth: int  # -1: unlimited
+    rr_depth: int
+    light_samples: int
+    hide_emitters: int
+
+
+@wp.struct
+class Ray:
+    o: wp.vec3
+    d: wp.vec3  # unit
+    tmax: float
+
+
+@wp.struct
+class Hit:
+    """Nearest intersection. Normals are unit and not flipped toward the ray."""
+
+    t: float
+    p: wp.vec3
+    ng: wp.vec3  # geometric normal: triangle winding, or outward for spheres
+    ns: wp.vec3  # shading normal
+    scale: float  # magnitude of the coordinates p was computed from (for ray offsets)
+    material: int
+    light: int  # -1 if the surface does not emit
+    sphere: int  # sphere index, -1 for a triangle

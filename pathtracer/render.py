@@ -1,0 +1,258 @@
+"""The driver: a render is a sum of independent, seeded sample passes.
+
+Pass ``i`` of seed ``s`` adds one sample to every pixel, drawn from random numbers keyed by (pixel, i, s), so any
+set of passes can be rendered anywhere (another thread, process or machine) and merged by adding ``PassSum``s.
+On the CPU, worker threads launch the same pass on interleaved rows (``wp.launch`` releases the GIL); every pixel
+is owned by one thread and sums its passes in pass order, so the image is bit-identical whatever the thread count.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+import warp as wp
+
+from kernels.integrator import RR_RULES, VIEWS, render_kernel
+from kernels.types import PassParams
+from pathtracer.device_scene import DeviceScene
+from pathtracer.errors import RenderError
+from pathtracer.scene import Scene
+from pathtracer.warp_setup import init_warp
+
+DEFAULT_LIGHT_SAMPLES = 8
+DEFAULT_RR = "throughput"
+UINT32_LIMIT = 2**32
+
+
+@dataclass
+class PassSum:
+    """Per-pixel sums over ``passes`` sample passes: mergeable by addition."""
+
+    sum: np.ndarray  # (H, W, 3) float64, sum of samples
+    sum_sq: np.ndarray  # (H, W, 3) float64, sum of squared samples
+    passes: int
+    discarded: int = 0  # non-finite samples dropped (never reach the image)
+    seconds: float = 0.0  # time spent rendering (excluding compilation)
+
+    def __add__(self, other: "PassSum") -> "PassSum":
+        return PassSum(self.sum + other.sum, self.sum_sq + other.sum_sq, self.passes + other.passes,
+                       self.discarded + other.discarded, self.seconds + other.seconds)
+
+    @property
+    def mean(self) -> np.ndarray:
+        """Linear radiance, float32 (H, W, 3)."""
+        return (self.sum / max(self.passes, 1)).astype(np.float32)
+
+    @property
+    def variance_of_mean(self) -> np.ndarray:
+        """Per-pixel, per-channel estimate of the variance of ``mean`` (from the spread of the passes)."""
+        n = self.passes
+        if n < 2:
+            return np.full_like(self.sum, np.inf)
+        m = self.sum / n
+        var = np.maximum(self.sum_sq / n - m * m, 0.0) * n / (n - 1)
+        return var / n
+
+
+def resolve_device(device: str | None) -> str:
+    """``None`` -> CUDA when present, else CPU; anything unknown is a RenderError."""
+    init_warp()
+    if device is None:
+        return "cuda:0" if wp.is_cuda_available() else "cpu"
+    name = str(device)
+    if name == "cpu":
+        return "cpu"
+    if name == "cuda" or name.startswith("cuda:"):
+        if not wp.is_cuda_available():
+            raise RenderError(f"device {name!r}: no CUDA device is available on this machine (use --device cpu)")
+        dev = "cuda:0" if name == "cuda" else name
+        try:
+            wp.get_device(dev)
+        except Exception as exc:  # Warp raises a plain RuntimeError for unknown ordinals
+            raise RenderError(f"device {name!r}: {exc}") from None
+        return dev
+    raise RenderError(f"unknown device {name!r} (supported: cpu, cuda, cuda:N)")
+
+
+def _check_int(name: str, value, low: int, high: int | None = None) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise RenderError(f"{name} must be an integer, got {value!r}")
+    if value < low or (high is not None and value >= high):
+        bound = f">= {low}" if high is None else f"in [{low}, {high})"
+        raise RenderError(f"{name} must be {bound}, got {value}")
+    return int(value)
+
+
+@dataclass
+class Renderer:
+    """A scene uploaded to a device with one compiled integrator variant; renders passes on demand.
+
+    max_depth, light_samples, rr: None means the scene file's value (max_depth) or the default
+    (8 light samples per light, Mitsuba's throughput roulette from the scene's rr_depth).
+    """
+
+    scene: Scene
+    device: str | None = None
+    max_depth: int | None = None
+    light_samples: int | None = None
+    rr: str | None = None
+    view: str = "radiance"
+    threads: int | None = None
+    compile_seconds: float = field(init=False, default=0.0)
+
+    def __post_init__(self):
+        self.device = resolve_device(self.device)
+        if self.view not in VIEWS:
+            raise RenderError(f"unknown view {self.view!r} (supported: {', '.join(VIEWS)})")
+        rr = DEFAULT_RR if self.rr is None else self.rr
+        if rr not in RR_RULES:
+            raise RenderError(f"unknown roulette rule {rr!r} (supported: {', '.join(RR_RULES)})")
+        self.rr = rr
+        depth = self.scene.integrator.max_depth if self.max_depth is None else self.max_depth
+        self.max_depth = _check_int("max_depth", depth, -1)
+        if self.max_depth == 0:
+            raise RenderError("max_depth must be -1 (unlimited) or >= 1, got 0")
+        k = DEFAULT_LIGHT_SAMPLES if self.light_samples is None else self.light_samples
+        self.light_samples = _check_int("light_samples", k, 1)
+        cpu = self.device == "cpu"
+        threads = (os.cpu_count() or 1) if self.threads is None else self.threads
+        self.threads = _check_int("threads", threads, 1)
+        if not cpu:
+            self.threads = 1  # one launch already fills a GPU
+        self.threads = min(self.threads, self.scene.height)
+
+        self.features = DeviceScene.features(self.scene, self.view, self.rr)
+        self.kernel = render_kernel(self.features)
+        t0 = time.perf_counter()
+        wp.load_module(self.kernel.module, device=self.device)
+        self.compile_seconds = time.perf_counter() - t0
+        with wp.ScopedDevice(self.device):
+            self.dscene = DeviceScene(self.scene, self.device)
+
+    def render_passes(
+        self,
+        seed: int = 0,
+        first_pass: int = 0,
+        count: int = 1,
+        progress: bool = False,
+        callback: Callable[[int, "PassSum"], object] | None = None,
+    ) -> PassSum:
+        """Render passes ``first_pass .. first_pass + count - 1`` of ``seed``; returns their sums.
+
+        ``callback(pass_index, sums_so_far)`` runs after each pass; returning False stops early (the sums
+        then hold the passes done, nothing is lost).
+        """
+        seed = _check_int("seed", seed, 0, UINT32_LIMIT)
+        count = _check_int("spp", count, 1)
+        first_pass = _check_int("first_pass", first_pass, 0, UINT32_LIMIT)
+        if first_pass + count > UINT32_LIMIT:
+            raise RenderError("pass indices must stay below 2^32")
+        s = self.scene
+        npix = s.width * s.height
+        with wp.ScopedDevice(self.device):
+            accum = wp.zeros(npix, dtype=wp.vec3)
+            accum_sq = wp.zeros(npix, dtype=wp.vec3)
+            discarded = wp.zeros(1, dtype=wp.int32)
+        rows_of = [len(range(w, s.height, self.threads)) for w in range(self.threads)]
+        it = s.integrator
+
+        def launch(worker: int, pass_index: int):
+            p = PassParams()
+            p.seed = wp.uint32(seed)
+            p.pass_index = wp.uint32(pass_index)
+            p.row_offset = worker
+            p.row_stride = self.threads
+            p.max_depth = self.max_depth
+            p.rr_depth = it.rr_depth
+            p.light_samples = self.light_samples
+            p.hide_emitters = int(it.hide_emitters)
+            wp.launch(self.kernel, dim=rows_of[worker] * s.width,
+                      inputs=[self.dscene.data, self.dscene.camera, p],
+                      outputs=[accum, accum_sq, discarded], device=self.device)
+
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=count, unit="pass", desc="rendering", leave=False, dynamic_ncols=True)
+        done = 0
+        t0 = time.perf_counter()
+        pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
+        try:
+            for pass_index in range(first_pass, first_pass + count):
+                if pool is None:
+                    launch(0, pass_index)
+                else:
+                    for f in [pool.submit(launch, w, pass_index) for w in range(self.threads)]:
+                        f.result()
+                done += 1
+                if bar is not None:
+                    bar.update(1)
+                if callback is not None:
+                    wp.synchronize_device(self.device)
+                    if callback(pass_index, self._sums(accum, accum_sq, discarded, done, t0)) is False:
+                        break
+            wp.synchronize_device(self.device)
+        finally:
+            if pool is not None:
+                pool.shutdown(wait=True, cancel_futures=True)
+            if bar is not None:
+                bar.close()
+        return self._sums(accum, accum_sq, discarded, done, t0)
+
+    def _sums(self, accum, accum_sq, discarded, done: int, t0: float) -> PassSum:
+        s = self.scene
+        shape = (s.height, s.width, 3)
+        return PassSum(accum.numpy().reshape(shape).astype(np.float64),
+                       accum_sq.numpy().reshape(shape).astype(np.float64),
+                       done, int(discarded.numpy()[0]), time.perf_counter() - t0)
+
+
+_lock = threading.Lock()
+
+
+def render(
+    scene: Scene,
+    spp: int | None = None,
+    max_depth: int | None = None,
+    seed: int = 0,
+    device: str | None = None,
+    *,
+    light_samples: int | None = None,
+    rr: str | None = None,
+    threads: int | None = None,
+    view: str = "radiance",
+    progress: bool = True,
+    callback: Callable[[int, PassSum], object] | None = None,
+    stats: dict | None = None,
+) -> np.ndarray:
+    """Render ``scene``; returns linear radiance, float32 (H, W, 3).
+
+    spp, max_depth: None means the scene file's value. device: None picks CUDA when present, else "cpu".
+    light_samples: next-event samples per light (default 8). rr: "throughput" (Mitsuba's rule from the scene's
+    rr_depth, default) or "seed" (stop with probability 0.2 after the first bounce). threads: CPU worker
+    threads (default: all cores); the image does not depend on it. view: "radiance", "direction" or "normal".
+    callback(pass_index, PassSum) runs after each pass. stats, if given, receives seconds, compile_seconds,
+    samples, discarded, spp, threads, device.
+    """
+    spp = scene.spp if spp is None else spp
+    spp = _check_int("spp", spp, 1)
+    r = Renderer(scene, device=device, max_depth=max_depth, light_samples=light_samples, rr=rr,
+                 view=view, threads=threads)
+    sums = r.render_passes(seed=seed, first_pass=0, count=spp, progress=progress, callback=callback)
+    if sums.discarded:
+        import warnings
+
+        warnings.warn(f"{scene.source}: {sums.discarded} non-finite samples were discarded", RuntimeWarning,
+                      stacklevel=2)
+    if stats is not None:
+        stats.update(seconds=sums.seconds, compile_seconds=r.compile_seconds,
+                     samples=sums.passes * scene.width * scene.height, discarded=sums.discarded,
+                     spp=sums.passes, threads=r.threads, device=r.device)
+    return sums.mean

@@ -1,0 +1,166 @@
+"""The scene model: plain data that loaders produce and the driver uploads.
+
+Everything here is in world space, float64 numpy, already validated. Data flows one way:
+file or dict -> ``Scene`` -> device arrays (``pathtracer.device_scene``) -> kernels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+DIFFUSE = 0
+MIRROR = 1
+MATERIAL_KINDS = {"diffuse": DIFFUSE, "mirror": MIRROR}
+
+
+@dataclass(frozen=True)
+class Material:
+    """A BSDF: ``diffuse`` (Lambertian, albedo ``rgb``) or ``mirror`` (perfect reflection scaled by ``rgb``).
+
+    One-sided materials reflect only on the side the geometric normal points to, as in Mitsuba;
+    ``twosided`` ones on both.
+    """
+
+    kind: str
+    rgb: tuple[float, float, float]
+    twosided: bool = False
+
+    @property
+    def code(self) -> int:
+        return MATERIAL_KINDS[self.kind]
+
+
+DEFAULT_MATERIAL = Material("diffuse", (0.5, 0.5, 0.5))  # Mitsuba's bsdf for a shape that names none
+
+
+@dataclass
+class Camera:
+    """A pinhole camera as Mitsuba's ``perspective`` sensor: looks along local +z, local +x is image left.
+
+    ``fov`` is in degrees along ``fov_axis`` (``x``, ``y``, ``diagonal``, ``smaller`` or ``larger``).
+    """
+
+    to_world: np.ndarray  # 4x4
+    fov: float
+    fov_axis: str = "x"
+    near_clip: float = 1e-2
+    far_clip: float = 1e4
+
+    def tan_half_fov(self, width: int, height: int) -> tuple[float, float]:
+        """tan of the half field of view along image x and y."""
+        t = float(np.tan(np.radians(self.fov) / 2.0))
+        aspect = width / height
+        axis = self.fov_axis
+        if axis == "smaller":
+            axis = "x" if width <= height else "y"
+        elif axis == "larger":
+            axis = "x" if width >= height else "y"
+        if axis == "x":
+            return t, t / aspect
+        if axis == "y":
+            return t * aspect, t
+        # diagonal
+        diag = np.hypot(width, height)
+        return t * width / diag, t * height / diag
+
+
+@dataclass
+class Sphere:
+    center: np.ndarray  # (3,)
+    radius: float
+    material: int  # index into Scene.materials
+
+
+@dataclass
+class TriangleMesh:
+    """Triangles in world space. ``normals`` are per-vertex shading normals, or None for flat shading.
+
+    ``light`` is the index of the area light this mesh emits as (a rectangle), or -1.
+    """
+
+    vertices: np.ndarray  # (N, 3) float64
+    faces: np.ndarray  # (M, 3) int64, counter-clockwise seen from the front
+    normals: np.ndarray | None
+    material: int
+    light: int = -1
+    name: str = ""
+
+
+@dataclass
+class RectLight:
+    """A one-sided parallelogram emitter: points ``center + s*half_u + t*half_v``, s, t in [-1, 1].
+
+    It emits ``radiance`` (W sr^-1 m^-2 per channel) to the side of ``normal``.
+    """
+
+    center: np.ndarray
+    half_u: np.ndarray
+    half_v: np.ndarray
+    normal: np.ndarray
+    radiance: tuple[float, float, float]
+
+    @property
+    def area(self) -> float:
+        return float(4.0 * np.linalg.norm(np.cross(self.half_u, self.half_v)))
+
+    def corners(self) -> np.ndarray:
+        c, u, v = self.center, self.half_u, self.half_v
+        return np.array([c - u - v, c + u - v, c + u + v, c - u + v])
+
+
+@dataclass
+class Integrator:
+    """Mitsuba's ``path`` integrator parameters.
+
+    max_depth: longest path in segments; -1 unlimited, 1 = emitters seen directly, 2 = direct lighting.
+    rr_depth: depth at which throughput-based Russian roulette starts.
+    """
+
+    max_depth: int = -1
+    rr_depth: int = 5
+    hide_emitters: bool = False
+
+
+@dataclass
+class Scene:
+    camera: Camera
+    width: int = 768
+    height: int = 576
+    spp: int = 4
+    sampler_seed: int = 0
+    integrator: Integrator = field(default_factory=Integrator)
+    materials: list[Material] = field(default_factory=list)
+    spheres: list[Sphere] = field(default_factory=list)
+    meshes: list[TriangleMesh] = field(default_factory=list)
+    lights: list[RectLight] = field(default_factory=list)
+    source: str = "<scene>"
+
+    def add_material(self, material: Material) -> int:
+        """Index of ``material``, adding it if new."""
+        for i, m in enumerate(self.materials):
+            if m == material:
+                return i
+        self.materials.append(material)
+        return len(self.materials) - 1
+
+    @property
+    def triangle_count(self) -> int:
+        return sum(len(m.faces) for m in self.meshes)
+
+    @property
+    def has_mirror(self) -> bool:
+        used = {s.material for s in self.spheres} | {m.material for m in self.meshes}
+        return any(self.materials[i].kind == "mirror" for i in used)
+
+    @property
+    def has_smooth_normals(self) -> bool:
+        return any(m.normals is not None for m in self.meshes)
+
+    def extent(self) -> float:
+        """Largest absolute world coordinate of any geometry or the camera (scale for ray offsets)."""
+        parts = [np.abs(self.camera.to_world[:3, 3])]
+        parts += [np.abs(m.vertices).max(axis=0) for m in self.meshes if len(m.vertices)]
+        parts += [np.abs(s.center) + s.radius for s in self.spheres]
+        return float(np.max(np.concatenate([np.atleast_1d(p) for p in parts])))
