@@ -221,7 +221,7 @@ def render(
     scene: Scene,
     spp: int | None = None,
     max_depth: int | None = None,
-    seed: int = 0,
+    seed: int | None = None,
     device: str | None = None,
     *,
     light_samples: int | None = None,
@@ -234,7 +234,8 @@ def render(
 ) -> np.ndarray:
     """Render ``scene``; returns linear radiance, float32 (H, W, 3).
 
-    spp, max_depth: None means the scene file's value. device: None picks CUDA when present, else "cpu".
+    spp, max_depth, seed: None means the scene file's value (its sampler's sample_count, the integrator's
+    max_depth, the sampler's seed). device: None picks CUDA when present, else "cpu".
     light_samples: next-event samples per light (default 8). rr: "throughput" (Mitsuba's rule from the scene's
     rr_depth, default) or "seed" (stop with probability 0.2 after the first bounce). threads: CPU worker
     threads (default: all cores); the image does not depend on it. view: "radiance", "direction" or "normal".
@@ -243,6 +244,7 @@ def render(
     """
     spp = scene.spp if spp is None else spp
     spp = _check_int("spp", spp, 1)
+    seed = scene.sampler_seed if seed is None else seed
     r = Renderer(scene, device=device, max_depth=max_depth, light_samples=light_samples, rr=rr,
                  view=view, threads=threads)
     sums = r.render_passes(seed=seed, first_pass=0, count=spp, progress=progress, callback=callback)

@@ -1,0 +1,244 @@
+"""Command line: ``pathtracer SCENE.xml -o OUT.exr [options]``, in the spirit of ``mitsuba scene.xml -o out.exr``.
+
+Every option is checked before the scene is loaded or anything compiled. User errors (bad options,
+scene errors, render errors, unwritable output) print ONE line ``pathtracer: error: <what>`` on
+stderr and exit with status 2; Ctrl-C prints ``pathtracer: interrupted`` and exits with 130. No
+partial output file is ever left behind.
+"""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+import os
+import re
+import sys
+import time
+import warnings
+
+PROG = "pathtracer"
+EXIT_OK, EXIT_USAGE, EXIT_INTERRUPTED = 0, 2, 130
+OUTPUT_EXTENSIONS = (".exr", ".png")
+_DEVICE_RE = re.compile(r"^(cpu|cuda(:\d+)?)$")
+_PARAM_NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+
+class UsageError(Exception):
+    """A bad command line; main() prints it as one line and returns 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # argparse's default prints the usage block too: keep one line
+        raise UsageError(" ".join(message.split()))
+
+
+def _version() -> str:
+    import pathtracer
+
+    version = getattr(pathtracer, "__version__", None)
+    if version is None:
+        try:
+            from importlib.metadata import version as dist_version
+
+            version = dist_version("pathtracer")
+        except Exception:
+            version = _source_tree_version() or "unknown"
+    return f"{PROG} {version}"
+
+
+def _source_tree_version() -> str | None:
+    """The version in pyproject.toml when running from a checkout that is not pip-installed."""
+    try:
+        import tomllib
+
+        root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+        with open(os.path.join(root, "pyproject.toml"), "rb") as f:
+            project = tomllib.load(f).get("project", {})
+        return project.get("version") if project.get("name") == "pathtracer" else None
+    except Exception:
+        return None
+
+
+class _VersionAction(argparse.Action):
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(_version())
+        parser.exit(EXIT_OK)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(
+        prog=PROG,
+        description="Render a Mitsuba-style XML scene with a Monte Carlo path tracer (NVIDIA Warp).",
+        epilog="Options left out take the scene file's value (or the renderer's default). "
+        "Exit status: 0 success, 2 bad usage or scene/render/output error, 130 interrupted.",
+    )
+    p.add_argument("scene", metavar="SCENE", help="scene file (.xml)")
+    p.add_argument("-o", "--output", metavar="OUT", required=True, help="output image: .exr (linear float32) or .png (8-bit sRGB)")
+    p.add_argument("--spp", type=int, metavar="N", help="samples per pixel (> 0)")
+    p.add_argument("--max-depth", type=int, metavar="D", help="longest path in segments: -1 unlimited, or >= 1")
+    p.add_argument("--seed", type=int, metavar="S", help="sampler seed, 0 <= S < 2**32")
+    p.add_argument("--device", metavar="DEV", help="cpu, cuda or cuda:N (default: cuda if available, else cpu)")
+    p.add_argument("--light-samples", type=int, metavar="K", help="next-event samples per light (> 0)")
+    p.add_argument("--rr", choices=("seed", "throughput"), help="Russian roulette: throughput (Mitsuba's rule) or seed")
+    p.add_argument("--threads", type=int, metavar="N", help="CPU threads (> 0)")
+    p.add_argument("--view", choices=("radiance", "direction", "normal"), default="radiance", help="what to render (default: radiance)")
+    p.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE", help="set scene parameter $NAME (repeatable)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--version", action=_VersionAction, help="print the version and exit")
+    return p
+
+
+def validate(args: argparse.Namespace) -> dict[str, str]:
+    """Check every option without touching the scene; returns the -D parameters. Raises UsageError."""
+    if args.spp is not None and args.spp <= 0:
+        raise UsageError(f"--spp must be > 0, got {args.spp}")
+    if args.max_depth is not None and (args.max_depth < -1 or args.max_depth == 0):
+        raise UsageError(f"--max-depth must be -1 (unlimited) or >= 1, got {args.max_depth}")
+    if args.light_samples is not None and args.light_samples <= 0:
+        raise UsageError(f"--light-samples must be > 0, got {args.light_samples}")
+    if args.threads is not None and args.threads <= 0:
+        raise UsageError(f"--threads must be > 0, got {args.threads}")
+    if args.seed is not None and not 0 <= args.seed < 2**32:
+        raise UsageError(f"--seed must be in [0, 2**32), got {args.seed}")
+    if args.device is not None and not _DEVICE_RE.match(args.device):
+        raise UsageError(f"unknown device {args.device!r}; expected cpu, cuda or cuda:N")
+
+    params: dict[str, str] = {}
+    for item in args.defines:
+        name, eq, value = item.partition("=")
+        if not eq:
+            raise UsageError(f"-D {item!r}: expected NAME=VALUE")
+        if not _PARAM_NAME_RE.match(name):
+            raise UsageError(f"-D {item!r}: parameter name must be letters, digits or _, not starting with a digit")
+        params[name] = value  # a later -D overrides an earlier one
+
+    if not os.path.isfile(args.scene):
+        reason = "is a directory" if os.path.isdir(args.scene) else "no such file"
+        raise UsageError(f"{args.scene}: cannot read scene: {reason}")
+
+    out = args.output
+    ext = os.path.splitext(out)[1].lower()
+    if ext not in OUTPUT_EXTENSIONS:
+        raise UsageError(f"{out}: unsupported output format ({ext or 'no extension'}); supported: .exr, .png")
+    if os.path.isdir(out):
+        raise UsageError(f"{out}: output is a directory")
+    directory = os.path.dirname(os.path.abspath(out))
+    if not os.path.isdir(directory):
+        raise UsageError(f"{out}: output directory {directory} does not exist")
+    if not os.access(directory, os.W_OK | os.X_OK):
+        raise UsageError(f"{out}: output directory {directory} is not writable")
+    return params
+
+
+def _render_kwargs(args: argparse.Namespace) -> dict:
+    """Only the options given on the command line: the rest keep the scene's / renderer's defaults."""
+    given = {
+        "spp": args.spp,
+        "max_depth": args.max_depth,
+        "seed": args.seed,
+        "device": args.device,
+        "light_samples": args.light_samples,
+        "rr": args.rr,
+        "threads": args.threads,
+    }
+    kwargs = {k: v for k, v in given.items() if v is not None}
+    kwargs["view"] = args.view
+    kwargs["progress"] = not args.no_progress
+    return kwargs
+
+
+def _accepts(func, name: str) -> bool:
+    try:
+        params = inspect.signature(func).parameters
+    except (TypeError, ValueError):
+        return False
+    return name in params or any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values())
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _error(message: str) -> int:
+    print(f"{PROG}: error: {message}", file=sys.stderr, flush=True)
+    return EXIT_USAGE
+
+
+def _summary(out: str, image, spp, device, seconds: float, compile_seconds, samples: int, discarded) -> str:
+    h, w = image.shape[:2]
+    parts = [f"{w}x{h}"]
+    if spp is not None:
+        parts.append(f"{spp} spp" + (f" on {device}" if device else ""))
+    if compile_seconds is None:
+        parts.append(f"{seconds:.2f} s (including compile)")
+    else:
+        parts.append(f"{seconds:.2f} s + {compile_seconds:.2f} s compile")
+    if seconds > 0:
+        parts.append(f"{samples / seconds / 1e6:.2f} M samples/s")
+    if discarded:
+        parts.append(f"{discarded} non-finite samples discarded")
+    return f"wrote {out}: " + ", ".join(parts)
+
+
+def run(args: argparse.Namespace) -> int:
+    import pathtracer
+    from pathtracer.errors import PathtracerError
+    from pathtracer.imageio import write_image
+
+    params = validate(args)
+    try:
+        scene = pathtracer.load_file(args.scene, **params)
+        kwargs = _render_kwargs(args)
+        stats: dict | None = None
+        if _accepts(pathtracer.render, "stats"):
+            stats = {}
+            kwargs["stats"] = stats
+        t0 = time.perf_counter()
+        with warnings.catch_warnings():
+            if stats is not None:  # reported in the summary line instead
+                warnings.filterwarnings("ignore", message=r".*non-finite samples", category=RuntimeWarning)
+            image = pathtracer.render(scene, **kwargs)
+        elapsed = time.perf_counter() - t0
+        write_image(args.output, image)
+    except PathtracerError as e:
+        return _error(_one_line(e))
+    except OSError as e:  # e.g. an unreadable scene file the loader did not wrap
+        where = f"{e.filename}: " if getattr(e, "filename", None) else ""
+        return _error(f"{where}{e.strerror or _one_line(e)}")
+
+    stats = stats or {}
+    spp = stats.get("spp", args.spp if args.spp is not None else getattr(scene, "spp", None))
+    h, w = image.shape[:2]
+    if "seconds" in stats:
+        seconds = float(stats["seconds"])
+        compile_seconds = stats.get("compile_seconds")
+        compile_seconds = None if compile_seconds is None else float(compile_seconds)
+    else:
+        seconds, compile_seconds = elapsed, None
+    samples = int(stats["samples"]) if "samples" in stats else w * h * (spp or 0)
+    discarded = int(stats.get("discarded", 0))
+    summary = _summary(args.output, image, spp, stats.get("device"), seconds, compile_seconds, samples, discarded)
+    print(summary, flush=True)
+    return EXIT_OK
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; returns the exit status (``pathtracer = "pathtracer.cli:main"``)."""
+    try:
+        try:
+            args = build_parser().parse_args(argv)
+        except SystemExit as e:  # --help / --version
+            return e.code if isinstance(e.code, int) else EXIT_OK
+        return run(args)
+    except UsageError as e:
+        return _error(str(e))
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr, flush=True)
+        return EXIT_INTERRUPTED
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,161 @@
+"""Reading and writing images: linear float32 OpenEXR and 8-bit sRGB PNG.
+
+Writes are atomic: the image goes to a hidden temporary file in the target's directory, which is
+renamed over the target only once complete, so an error or Ctrl-C never leaves a partial file behind
+and never damages an existing one.
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+
+import numpy as np
+
+from pathtracer.errors import ImageIOError
+
+SUPPORTED_EXTENSIONS = (".exr", ".png")
+
+
+def _extension(path: str | os.PathLike) -> str:
+    ext = os.path.splitext(os.fspath(path))[1].lower()
+    if ext not in SUPPORTED_EXTENSIONS:
+        shown = ext if ext else "no extension"
+        raise ImageIOError(
+            f"{os.fspath(path)}: unsupported image format ({shown}); supported: "
+            + ", ".join(SUPPORTED_EXTENSIONS)
+        )
+    return ext
+
+
+def _reason(exc: BaseException) -> str:
+    """A one-line reason for an OS or library error."""
+    if isinstance(exc, OSError) and exc.strerror:
+        return exc.strerror
+    text = " ".join(str(exc).split())
+    return text or type(exc).__name__
+
+
+# --- sRGB ---------------------------------------------------------------------------------------
+
+
+def linear_to_srgb(x: np.ndarray) -> np.ndarray:
+    """The exact sRGB OETF on [0, 1] (float64): 12.92 x below 0.0031308, else 1.055 x^(1/2.4) - 0.055."""
+    x = np.asarray(x, dtype=np.float64)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(np.maximum(x, 0.0031308), 1.0 / 2.4) - 0.055)
+
+
+def srgb_to_linear(s: np.ndarray) -> np.ndarray:
+    """Inverse sRGB (EOTF) to linear float32. Integer input is read as 8-bit codes (0..255)."""
+    s = np.asarray(s)
+    if np.issubdtype(s.dtype, np.integer):
+        s = s.astype(np.float64) / 255.0
+    s = np.asarray(s, dtype=np.float64)
+    lin = np.where(s <= 0.04045, s / 12.92, np.power((np.maximum(s, 0.04045) + 0.055) / 1.055, 2.4))
+    return lin.astype(np.float32)
+
+
+def to_srgb8(image: np.ndarray) -> np.ndarray:
+    """Linear radiance -> 8-bit sRGB at exposure 1: clamp to [0, 1] (NaN -> 0), OETF, round to nearest."""
+    x = np.nan_to_num(np.asarray(image, dtype=np.float64), nan=0.0, posinf=1.0, neginf=0.0)
+    x = np.clip(x, 0.0, 1.0)
+    return np.floor(linear_to_srgb(x) * 255.0 + 0.5).astype(np.uint8)
+
+
+# --- encoders (module-level so tests can replace them) -------------------------------------------
+
+
+def _write_exr(path: str, image: np.ndarray) -> None:
+    import OpenEXR
+
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    # One "RGB" entry of shape (H, W, 3) is stored as the three standard channels R, G, B.
+    with OpenEXR.File(header, {"RGB": image}) as f:
+        f.write(path)
+
+
+def _write_png(path: str, image: np.ndarray) -> None:
+    from PIL import Image
+
+    Image.fromarray(to_srgb8(image), "RGB").save(path, format="PNG")
+
+
+# --- public API ---------------------------------------------------------------------------------
+
+
+def write_image(path: str | os.PathLike, image: np.ndarray) -> None:
+    """Write an (H, W, 3) linear image: ``.exr`` as float32 RGB, ``.png`` as 8-bit sRGB.
+
+    Raises ImageIOError (one line naming the path) for an unsupported extension, a bad array or
+    a file that cannot be written; the target is then left as it was.
+    """
+    path = os.fspath(path)
+    ext = _extension(path)
+    image = np.asarray(image)
+    if image.ndim != 3 or image.shape[2] != 3 or image.shape[0] == 0 or image.shape[1] == 0:
+        raise ImageIOError(f"{path}: cannot write: expected an (H, W, 3) image, got shape {image.shape}")
+    image = np.ascontiguousarray(image, dtype=np.float32)
+
+    directory, name = os.path.split(os.path.abspath(path))
+    tmp = os.path.join(directory, f".{name}.{secrets.token_hex(4)}.tmp{ext}")
+    try:
+        # O_EXCL: never clobber someone else's file; mode 0o666 lets the umask apply as for open().
+        os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+    except OSError as e:
+        raise ImageIOError(f"{path}: cannot write: {_reason(e)}") from None
+    try:
+        writer = _write_exr if ext == ".exr" else _write_png
+        writer(tmp, image)
+        os.replace(tmp, path)
+    except BaseException as e:
+        try:
+            os.remove(tmp)
+        except OSError:
+            pass
+        if isinstance(e, (OSError, RuntimeError, ValueError)):
+            raise ImageIOError(f"{path}: cannot write: {_reason(e)}") from None
+        raise
+
+
+def read_image(path: str | os.PathLike) -> np.ndarray:
+    """Read an image as linear float32 (H, W, 3): EXR as stored, PNG decoded through inverse sRGB."""
+    path = os.fspath(path)
+    ext = _extension(path)
+    try:
+        with open(path, "rb"):  # a clean OS reason (and no C-library noise) for missing files
+            pass
+    except OSError as e:
+        raise ImageIOError(f"{path}: cannot read: {_reason(e)}") from None
+    try:
+        return _read_exr(path) if ext == ".exr" else _read_png(path)
+    except ImageIOError:
+        raise
+    except Exception as e:  # library errors on corrupt files
+        raise ImageIOError(f"{path}: cannot read: {_reason(e)}") from None
+
+
+def _read_exr(path: str) -> np.ndarray:
+    import OpenEXR
+
+    with OpenEXR.File(path, separate_channels=True) as f:
+        channels = {name: np.array(ch.pixels) for name, ch in f.channels().items()}
+    if all(c in channels for c in "RGB"):
+        planes = [channels[c] for c in "RGB"]
+    elif "Y" in channels:
+        planes = [channels["Y"]] * 3
+    else:
+        raise ImageIOError(f"{path}: cannot read: no R, G, B (or Y) channels, found {sorted(channels)}")
+    return np.stack([p.astype(np.float32) for p in planes], axis=-1)
+
+
+def _read_png(path: str) -> np.ndarray:
+    from PIL import Image
+
+    with Image.open(path) as im:
+        im.load()
+        if im.mode in ("I;16", "I;16B", "I;16L", "I"):
+            s = np.asarray(im, dtype=np.float64) / 65535.0
+            s = np.repeat(s[..., None], 3, axis=-1)
+        else:
+            s = np.asarray(im.convert("RGB"), dtype=np.float64) / 255.0
+    return srgb_to_linear(s)
