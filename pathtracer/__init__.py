@@ -7,6 +7,8 @@
 """
 
 from pathtracer.errors import ImageIOError, PathtracerError, RenderError, SceneError
+from pathtracer.imageio import read_image, write_image
+from pathtracer.loader import load_dict, load_file
 from pathtracer.render import PassSum, Renderer, render
 from pathtracer.scene import Camera, Integrator, Material, RectLight, Scene, Sphere, TriangleMesh
 
@@ -14,18 +16,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "Camera", "ImageIOError", "Integrator", "Material", "PassSum", "PathtracerError", "RectLight",
-    "RenderError", "Renderer", "Scene", "SceneError", "Sphere", "TriangleMesh", "render",
+    "RenderError", "Renderer", "Scene", "SceneError", "Sphere", "TriangleMesh", "load_dict", "load_file",
+    "read_image", "render", "write_image",
 ]
 
-try:  # written in parallel; exported once present
-    from pathtracer.loader import load_dict, load_file  # noqa: F401
-
-    __all__ += ["load_dict", "load_file"]
-except ImportError:
-    pass
-try:
-    from pathtracer.imageio import read_image, write_image  # noqa: F401
-
-    __all__ += ["read_image", "write_image"]
-except ImportError:
-    pass

@@ -19,7 +19,8 @@ MATERIAL_KINDS = {"diffuse": DIFFUSE, "mirror": MIRROR}
 class Material:
     """A BSDF: ``diffuse`` (Lambertian, albedo ``rgb``) or ``mirror`` (perfect reflection scaled by ``rgb``).
 
-    One-sided materials reflect only on the side the geometric normal points to, as in Mitsuba;
+    One-sided materials reflect only on their front side (Mitsuba: the shading normal's side; the loader winds
+    rectangles and cubes so that the face normal agrees);
     ``twosided`` ones on both.
     """
 

@@ -1,0 +1,674 @@
+"""Scene loading: Mitsuba 3 XML files and Mitsuba-shaped dicts -> :class:`pathtracer.scene.Scene`.
+
+``load_file`` parses XML into the dict shape that ``mi.load_dict`` accepts
+(``pathtracer.loader_xml``) and hands it to the same code as ``load_dict``, so every plugin's
+semantics, defaults and checks live here, once. Supported subset, with Mitsuba 3's defaults:
+
+=========== ============ ==========================================================================
+element     type         properties (default)
+=========== ============ ==========================================================================
+integrator  path         max_depth (-1, unlimited; >= -1), rr_depth (5; > 0), hide_emitters (false)
+sensor      perspective  fov (required, degrees, 0 < fov < 180), fov_axis (x | y | diagonal |
+                         smaller | larger), near_clip (0.01), far_clip (10000), to_world (rigid)
+sampler     independent  sample_count (4; > 0), seed (0)
+film        hdrfilm      width (768), height (576), pixel_format (rgb only), component_format
+                         (float16 | float32; storage precision only, never changes the image);
+                         rfilter box; a film with no rfilter (Mitsuba's gaussian default) is
+                         accepted and box-filtered, an explicit gaussian is refused
+bsdf        diffuse      reflectance (0.5; rgb or float in [0, 1])
+bsdf        conductor    material ("none" only: a perfect mirror), specular_reflectance (1.0)
+bsdf        twosided     exactly one nested diffuse or conductor
+shape       sphere       center (0), radius (1; > 0), to_world (translation, rotation and uniform
+                         scale only; no mirroring, which turns Mitsuba's sphere inside out);
+                         Mitsuba composes to_world * translate(center) * scale(radius)
+shape       rectangle    to_world; [-1, 1]^2 at z = 0 with normal +z; the only shape that may hold
+                         an emitter
+shape       cube         to_world; [-1, 1]^3, Mitsuba's 24 vertices and 12 outward triangles
+shape       obj, ply     filename (relative to the scene file; for load_dict, to the working
+                         directory), face_normals (false), flip_tex_coords (no-op: no textures),
+                         to_world
+emitter     area         radiance (1.0, rgb or float >= 0), only inside a rectangle
+=========== ============ ==========================================================================
+
+Every shape takes ``flip_normals`` = false only and at most one bsdf (inline or ``ref``); a shape
+with no bsdf gets diffuse 0.5, an emitting shape with no bsdf gets a black diffuse (Mitsuba's
+``Shape`` constructor). Mesh normals and winding follow the side Mitsuba shades as the front:
+rectangles and cubes transform their normal as a normal (inverse transpose), so under a mirroring
+``to_world`` their triangles are rewound to keep the face normal on that side; a file mesh with
+vertex normals is rewound the same way; a mesh whose normals are recomputed (angle-weighted, in
+world space) or flat (``face_normals``) keeps its world-space winding, as in Mitsuba.
+
+XML follows Mitsuba 3.9's parser: ``<default>`` and ``$name`` substitution in document order
+(longest names first, a backslash escapes a dollar), a parameter passed but never used is an
+error, transform operations left-multiply. One difference on purpose: a ``<rotate>`` axis must be
+a unit vector (Mitsuba 3.9 does not normalize it, so another length would not be a rotation
+there). Dicts may also give a colour as a plain 3-sequence, which ``mi.load_dict`` refuses.
+
+Anything else (an unknown plugin, property, tag or attribute, a wrong type, NaN or infinity, a
+value out of range, a dangling reference) raises :class:`SceneError` naming the source, the
+element and what is supported. Nothing is ignored or approximated silently.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import meshio
+from . import transform as tf
+from .errors import SceneError
+from .loader_xml import Point3, XmlDict, parse_file
+from .scene import DEFAULT_MATERIAL, Camera, Integrator, Material, RectLight, Scene, Sphere, TriangleMesh
+
+FLOAT, INT, BOOL, STRING, POINT, COLOR, TRANSFORM = "float", "integer", "boolean", "string", "point", "rgb", "transform"
+UINT32_MAX = 2**32 - 1
+
+
+@dataclass(frozen=True)
+class Plugin:
+    category: str
+    props: dict
+    nested: tuple = field(default=())
+
+
+PLUGINS = {
+    "path": Plugin("integrator", {"max_depth": INT, "rr_depth": INT, "hide_emitters": BOOL}),
+    "perspective": Plugin("sensor", {"fov": FLOAT, "fov_axis": STRING, "near_clip": FLOAT, "far_clip": FLOAT,
+                                     "to_world": TRANSFORM}, ("film", "sampler")),
+    "independent": Plugin("sampler", {"sample_count": INT, "seed": INT}),
+    "hdrfilm": Plugin("film", {"width": INT, "height": INT, "pixel_format": STRING, "component_format": STRING},
+                      ("rfilter",)),
+    "box": Plugin("rfilter", {}),
+    "diffuse": Plugin("bsdf", {"reflectance": COLOR}),
+    "conductor": Plugin("bsdf", {"material": STRING, "specular_reflectance": COLOR}),
+    "twosided": Plugin("bsdf", {}, ("bsdf",)),
+    "sphere": Plugin("shape", {"center": POINT, "radius": FLOAT, "to_world": TRANSFORM, "flip_normals": BOOL},
+                     ("bsdf",)),
+    "rectangle": Plugin("shape", {"to_world": TRANSFORM, "flip_normals": BOOL}, ("bsdf", "emitter")),
+    "cube": Plugin("shape", {"to_world": TRANSFORM, "flip_normals": BOOL}, ("bsdf",)),
+    "obj": Plugin("shape", {"filename": STRING, "face_normals": BOOL, "flip_tex_coords": BOOL,
+                            "to_world": TRANSFORM, "flip_normals": BOOL}, ("bsdf",)),
+    "ply": Plugin("shape", {"filename": STRING, "face_normals": BOOL, "flip_tex_coords": BOOL,
+                            "to_world": TRANSFORM, "flip_normals": BOOL}, ("bsdf",)),
+    "area": Plugin("emitter", {"radiance": COLOR}),
+}
+
+# Mitsuba 3 plugins we do not support, by category: for dict scenes (where only the type names
+# the category) and for messages that say what is supported instead.
+MITSUBA_TYPES = {
+    "integrator": "direct path volpath volpathmis aov ptracer prb prb_basic prb_projective direct_projective "
+                  "moment stokes depth",
+    "sensor": "perspective thinlens orthographic radiancemeter irradiancemeter distant batch",
+    "film": "hdrfilm specfilm",
+    "sampler": "independent stratified multijitter orthogonal ldsampler",
+    "rfilter": "box tent gaussian mitchell catmullrom lanczos",
+    "bsdf": "diffuse conductor roughconductor dielectric roughdielectric thindielectric plastic roughplastic "
+            "twosided principled principledthin blendbsdf mask null bumpmap normalmap measured "
+            "measured_polarized polarizer retarder circular pplastic hair",
+    "shape": "sphere rectangle cube obj ply disk cylinder serialized shapegroup instance bsplinecurve "
+             "linearcurve sdfgrid ellipsoids ellipsoidsmesh merge",
+    "emitter": "area point spot constant envmap directional directionalarea projector sunsky",
+    "texture": "bitmap checkerboard mesh_attribute volume",
+}
+TYPE_CATEGORY = {t: cat for cat, names in MITSUBA_TYPES.items() for t in names.split()}
+VALUE_TYPES = {"rgb", "spectrum", "ref"}
+HINTS = {
+    "focal_length": ' (give "fov" in degrees instead)',
+    "eta": ' (only material="none", a perfect mirror, is supported)',
+    "k": ' (only material="none", a perfect mirror, is supported)',
+}
+FOV_AXES = ("x", "y", "diagonal", "smaller", "larger")
+
+# Mitsuba's cube: 4 vertices per face (normals -y, +y, +x, +z, -x, -z), 2 triangles each.
+_CUBE_VERTICES = np.array([
+    [1, -1, -1], [1, -1, 1], [-1, -1, 1], [-1, -1, -1], [1, 1, -1], [-1, 1, -1], [-1, 1, 1], [1, 1, 1],
+    [1, -1, -1], [1, 1, -1], [1, 1, 1], [1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1], [-1, -1, 1],
+    [-1, -1, 1], [-1, 1, 1], [-1, 1, -1], [-1, -1, -1], [1, 1, -1], [1, -1, -1], [-1, -1, -1], [-1, 1, -1],
+], dtype=np.float64)
+_CUBE_FACES = np.array([[4 * i + a for a in tri] for i in range(6) for tri in ((0, 1, 2), (3, 0, 2))],
+                       dtype=np.int64)
+_RECT_VERTICES = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], dtype=np.float64)
+
+
+def load_file(path: str | os.PathLike, **params) -> Scene:
+    """Load a Mitsuba 3 XML scene; ``params`` override its ``<default>`` values (like ``mi.load_file``).
+
+    Values may be Python numbers, bools or strings. A parameter the file never refers to is an
+    error, as in Mitsuba. Mesh filenames are relative to the scene file.
+    """
+    with np.errstate(all="ignore"):  # overflow is reported as a SceneError where a value is checked
+        d = parse_file(path, params)
+    return _Builder(str(path), Path(path).parent).build(d)
+
+
+def load_dict(d: Mapping, source: str = "<dict>") -> Scene:
+    """Load a Mitsuba-shaped scene dict (as ``mi.load_dict`` takes: ``{'type': 'scene', ...}``).
+
+    Colours may be ``{'type': 'rgb', 'value': [r, g, b]}``, a float or a 3-sequence; ``to_world`` a
+    4x4 nested list or array, a ``mi.ScalarTransform4f`` or a :class:`pathtracer.transform.Transform`;
+    ``{'type': 'ref', 'id': key}`` refers to a top-level key (or a nested dict's ``'id'``).
+    """
+    return _Builder(source, Path.cwd()).build(d)
+
+
+# -- helpers --------------------------------------------------------------------------------------
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+
+
+def _float(v) -> float:
+    """float(v), with Python ints too large for a float mapped to infinity (then refused as not finite)."""
+    try:
+        return float(v)
+    except OverflowError:
+        return float("inf")
+
+
+def _is_plugin(v) -> bool:
+    return isinstance(v, Mapping) and isinstance(v.get("type"), str)
+
+
+def _show(v) -> str:
+    if isinstance(v, np.ndarray):
+        text = f"array of shape {v.shape}"
+    else:
+        text = " ".join(repr(v).split())
+        if len(text) > 40:
+            text = text[:37] + "..."
+    return f"{type(v).__name__} {text}" if not isinstance(v, (bool, int, float, str)) else text
+
+
+def _where(node: Mapping, path: str) -> str:
+    if isinstance(node, XmlDict):
+        return node.where
+    t = node.get("type")
+    return f"{path or 'scene dict'} (type \"{t if isinstance(t, str) else _show(t)}\")"
+
+
+def _prop_where(node: Mapping, path: str, key: str) -> str:
+    if isinstance(node, XmlDict):
+        return node.prop_where.get(key, node.where)
+    return f"{path}[{key!r}]"
+
+
+def _category(node: Mapping) -> str | None:
+    if isinstance(node, XmlDict):
+        return node.category
+    return TYPE_CATEGORY.get(node["type"])
+
+
+def _supported(spec: Plugin) -> str:
+    names = [f"{k} (false only)" if k == "flip_normals" else k for k in spec.props]
+    return ", ".join(names + list(spec.nested)) or "none"
+
+
+def _types_of(category: str) -> str:
+    return ", ".join(sorted(t for t, p in PLUGINS.items() if p.category == category))
+
+
+def _check_invertible(linear: np.ndarray) -> bool:
+    scale = float(np.prod(np.linalg.norm(linear, axis=0)))
+    return abs(float(np.linalg.det(linear))) > 1e-12 * scale
+
+
+@dataclass
+class _Obj:
+    """A nested plugin dict with its path (for errors) and the place it was written."""
+
+    node: Mapping
+    path: str
+    category: str
+
+
+class _Builder:
+    def __init__(self, source: str, base_dir: Path):
+        self.source = source
+        self.base_dir = base_dir
+        self.ids: dict[str, tuple[Mapping, str]] = {}
+        self.materials: dict[int, Material] = {}
+        self.visiting: set[int] = set()
+
+    def fail(self, where: str, problem: str):
+        raise SceneError(self.source, " ".join(where.split()), " ".join(problem.split()))
+
+    def build(self, d) -> Scene:
+        # Every number is checked for finiteness where it is used: overflow is an error, not a warning.
+        with np.errstate(all="ignore"):
+            return self.scene(d)
+
+    # -- structure ----------------------------------------------------------------------------
+
+    def register(self, node: Mapping, path: str, key_id: str | None, depth: int = 0):
+        if depth > 64:
+            self.fail(_where(node, path), "plugins are nested too deeply (a dict that contains itself?)")
+        ids = [] if key_id is None else [key_id]
+        if "id" in node:
+            if not isinstance(node["id"], str) or not node["id"]:
+                self.fail(_prop_where(node, path, "id"), f'"id" must be a non-empty string (got {_show(node["id"])})')
+            if node["id"] != key_id:
+                ids.append(node["id"])
+        for i in ids:
+            if i in self.ids:
+                self.fail(_where(node, path), f'duplicate id "{i}" (also used by {_where(*self.ids[i])})')
+            self.ids[i] = (node, path)
+        for k, v in node.items():
+            if _is_plugin(v) and v["type"] not in VALUE_TYPES:
+                self.register(v, f"{path}[{k!r}]", None, depth + 1)
+
+    def spec(self, node: Mapping, path: str, expected: tuple) -> Plugin:
+        t = node["type"]
+        cat = _category(node)
+        where = _where(node, path)
+        if cat is None:
+            self.fail(where, f'unknown plugin type "{t}" (supported: {", ".join(sorted(PLUGINS))})')
+        if cat not in expected:
+            self.fail(where, f"a {cat} cannot appear here (expected: {' or '.join(expected)})")
+        spec = PLUGINS.get(t)
+        if spec is None or spec.category != cat:
+            if cat == "rfilter" and t == "gaussian":
+                self.fail(where, 'rfilter "gaussian" is not supported (supported: box; a film with no '
+                                 'rfilter is accepted and box-filtered)')
+            self.fail(where, f'{cat} type "{t}" is not supported (supported: {_types_of(cat) or "none"})')
+        return spec
+
+    def resolve(self, ref: Mapping, where: str) -> tuple[Mapping, str]:
+        extra = [k for k in ref if k not in ("type", "id")]
+        if extra:
+            self.fail(where, f'a ref takes only "id" (got {", ".join(map(str, extra))})')
+        rid = ref.get("id")
+        if not isinstance(rid, str):
+            self.fail(where, f'a ref needs a string "id" (got {_show(rid)})')
+        if rid not in self.ids:
+            known = ", ".join(sorted(self.ids)) or "none"
+            self.fail(where, f'reference to unknown id "{rid}" (ids defined: {known})')
+        return self.ids[rid]
+
+    def fields(self, node: Mapping, path: str, spec: Plugin) -> tuple[dict, list[_Obj]]:
+        """Split a plugin dict into its properties and its nested objects (refs resolved)."""
+        props, objs = {}, []
+        for k, v in node.items():
+            if k in ("type", "id"):
+                continue
+            if not isinstance(k, str):
+                self.fail(_where(node, path), f"keys must be strings (got {_show(k)})")
+            if k in spec.props:
+                props[k] = v
+            elif _is_plugin(v) and v["type"] == "ref":
+                target, tpath = self.resolve(v, _prop_where(node, path, k))
+                objs.append(_Obj(target, tpath, _category(target) or ""))
+            elif _is_plugin(v) and v["type"] not in VALUE_TYPES:
+                objs.append(_Obj(v, f"{path}[{k!r}]", _category(v) or ""))
+            else:
+                self.fail(_where(node, path), f'property "{k}" is not supported '
+                                              f'(supported: {_supported(spec)}){HINTS.get(k, "")}')
+        for o in objs:
+            if o.category not in spec.nested:
+                if o.category == "emitter" and spec.category == "shape":
+                    self.fail(_where(o.node, o.path), f'area emitters are supported only on rectangle shapes '
+                                                      f'(not on a {node["type"]})')
+                what = f'a {o.category}' if o.category else f'unknown plugin type "{o.node["type"]}"'
+                self.fail(_where(o.node, o.path), f'{what} cannot appear inside {_where(node, path)} '
+                                                  f'(supported there: {_supported(spec)})')
+        return props, objs
+
+    def one(self, objs: list[_Obj], category: str, parent: str) -> _Obj | None:
+        found = [o for o in objs if o.category == category]
+        if len(found) > 1:
+            self.fail(_where(found[1].node, found[1].path), f"only one {category} is allowed in {parent}")
+        return found[0] if found else None
+
+    # -- values -------------------------------------------------------------------------------
+
+    def value(self, node: Mapping, path: str, props: dict, key: str, kind: str, default=None):
+        if key not in props:
+            return default
+        v = props[key]
+        where = _prop_where(node, path, key)
+        if kind == FLOAT:
+            if not _is_number(v):
+                self.fail(where, f"{key} must be a number (got {_show(v)})")
+            if not np.isfinite(_float(v)):
+                self.fail(where, f"{key} must be a finite number (got {_show(v)})")
+            return _float(v)
+        if kind == INT:
+            if not isinstance(v, (int, np.integer)) or isinstance(v, (bool, np.bool_)):
+                self.fail(where, f"{key} must be an integer (got {_show(v)})")
+            return int(v)
+        if kind == BOOL:
+            if not isinstance(v, (bool, np.bool_)):
+                self.fail(where, f"{key} must be a boolean (got {_show(v)})")
+            return bool(v)
+        if kind == STRING:
+            if not isinstance(v, str):
+                self.fail(where, f"{key} must be a string (got {_show(v)})")
+            return v
+        if kind == POINT:
+            return self.vec3(v, where, key, "a point (3 numbers)")
+        if kind == COLOR:
+            return self.colour(v, where, key)
+        if kind == TRANSFORM:
+            return self.matrix(v, where, key)
+        raise AssertionError(kind)
+
+    def vec3(self, v, where: str, key: str, what: str) -> np.ndarray:
+        if isinstance(v, (Mapping, str, bytes)) or _is_number(v) or isinstance(v, (bool, np.bool_)):
+            self.fail(where, f"{key} must be {what} (got {_show(v)})")
+        try:
+            items = list(v)
+        except TypeError:
+            self.fail(where, f"{key} must be {what} (got {_show(v)})")
+        if len(items) != 3 or not all(_is_number(x) for x in items):
+            self.fail(where, f"{key} must be {what} (got {_show(v)})")
+        a = np.array([_float(x) for x in items])
+        if not np.all(np.isfinite(a)):
+            self.fail(where, f"{key} must be finite (got {a.tolist()})")
+        return a
+
+    def colour(self, v, where: str, key: str) -> tuple[float, float, float]:
+        if isinstance(v, Point3):
+            self.fail(where, f"{key} must be an <rgb> or a <float>, not a point or vector")
+        if _is_plugin(v):
+            if v["type"] != "rgb":
+                self.fail(where, f'{key}: "{v["type"]}" is not supported (give an rgb value or a float)')
+            extra = [k for k in v if k not in ("type", "value")]
+            if extra:
+                self.fail(where, f'an rgb value takes only "value" (got {", ".join(map(str, extra))})')
+            if "value" not in v:
+                self.fail(where, f'{key}: an rgb value needs "value"')
+            v = v["value"]
+        if _is_number(v):
+            if not np.isfinite(_float(v)):
+                self.fail(where, f"{key} must be finite (got {_show(v)})")
+            return (_float(v),) * 3
+        return tuple(self.vec3(v, where, key, "an rgb value (3 numbers) or a float").tolist())
+
+    def matrix(self, v, where: str, key: str) -> np.ndarray:
+        raw = v.matrix if hasattr(v, "matrix") and not isinstance(v, np.ndarray) else v
+        if isinstance(raw, (Mapping, str, bytes)) or _is_number(raw):
+            self.fail(where, f"{key} must be a 4x4 matrix or a transform (got {_show(v)})")
+        try:
+            m = np.array(raw, dtype=np.float64)
+        except (TypeError, ValueError, OverflowError):
+            self.fail(where, f"{key} must be a 4x4 matrix or a transform (got {_show(v)})")
+        if m.shape != (4, 4):
+            self.fail(where, f"{key} must be a 4x4 matrix (got shape {m.shape})")
+        if not np.all(np.isfinite(m)):
+            self.fail(where, f"{key} has NaN or infinite entries")
+        if np.max(np.abs(m[3] - (0.0, 0.0, 0.0, 1.0))) > 1e-9:
+            self.fail(where, f"{key} must be affine (last row 0 0 0 1, got {m[3].tolist()})")
+        return m
+
+    def in_range(self, where: str, key: str, v, ok: bool, rule: str):
+        if not ok:
+            self.fail(where, f"{key} must be {rule} (got {v})")
+        return v
+
+    # -- plugins ------------------------------------------------------------------------------
+
+    def scene(self, d) -> Scene:
+        if not isinstance(d, Mapping):
+            self.fail("", f"a scene must be a dict (got {_show(d)})")
+        if not (_is_plugin(d) and d["type"] == "scene"):
+            self.fail(_where(d, ""), 'the top-level dict must have "type": "scene"')
+        for k, v in d.items():
+            if _is_plugin(v) and v["type"] not in VALUE_TYPES:
+                named = not isinstance(d, XmlDict) or "id" in v
+                self.register(v, f"[{k!r}]", k if named and isinstance(k, str) else None)
+
+        integrators, sensors, shapes = [], [], []
+        for k, v in d.items():
+            if k == "type":
+                continue
+            path = f"[{k!r}]"
+            if not _is_plugin(v) or v["type"] in VALUE_TYPES:
+                what = "a ref" if _is_plugin(v) and v["type"] == "ref" else f'"{k}"'
+                self.fail(_prop_where(d, "", k), f"{what} cannot appear at scene level (a scene holds integrator, "
+                                                 f"sensor, shape and bsdf plugins)")
+            cat = _category(v)
+            if cat in ("film", "sampler", "rfilter"):
+                parent = "film" if cat == "rfilter" else "sensor"
+                self.fail(_where(v, path), f"a {cat} must be nested in the {parent}")
+            if cat == "emitter":
+                self.fail(_where(v, path), "emitters are supported only as an area emitter inside a rectangle shape")
+            self.spec(v, path, ("integrator", "sensor", "shape", "bsdf"))
+            if cat == "integrator":
+                integrators.append((v, path))
+            elif cat == "sensor":
+                sensors.append((v, path))
+            elif cat == "shape":
+                shapes.append((v, path, k))
+            else:
+                self.material(v, path)  # checked even when unused, as Mitsuba instantiates it
+        if len(integrators) > 1:
+            self.fail(_where(*integrators[1]), "only one integrator can be specified per scene")
+        if not sensors:
+            self.fail(_where(d, ""), 'the scene has no sensor (a "perspective" sensor with a "fov" is required)')
+        if len(sensors) > 1:
+            self.fail(_where(*sensors[1]), "only one sensor is supported")
+
+        scene = self.sensor(*sensors[0])
+        scene.source = self.source
+        if integrators:
+            scene.integrator = self.integrator(*integrators[0])
+        for node, path, key in shapes:
+            self.shape(node, path, key, scene)
+        return scene
+
+    def integrator(self, node: Mapping, path: str) -> Integrator:
+        spec = self.spec(node, path, ("integrator",))
+        props, _ = self.fields(node, path, spec)
+        w = lambda k: _prop_where(node, path, k)  # noqa: E731
+        max_depth = self.value(node, path, props, "max_depth", INT, -1)
+        self.in_range(w("max_depth"), "max_depth", max_depth, max_depth >= -1, "-1 (unlimited) or >= 0")
+        rr_depth = self.value(node, path, props, "rr_depth", INT, 5)
+        self.in_range(w("rr_depth"), "rr_depth", rr_depth, rr_depth > 0, "> 0")
+        hide = self.value(node, path, props, "hide_emitters", BOOL, False)
+        return Integrator(max_depth=max_depth, rr_depth=rr_depth, hide_emitters=hide)
+
+    def sensor(self, node: Mapping, path: str) -> Scene:
+        spec = self.spec(node, path, ("sensor",))
+        props, objs = self.fields(node, path, spec)
+        where = _where(node, path)
+        w = lambda k: _prop_where(node, path, k)  # noqa: E731
+        if "fov" not in props:
+            self.fail(where, 'the perspective sensor needs "fov" (degrees, measured along "fov_axis")')
+        fov = self.value(node, path, props, "fov", FLOAT)
+        self.in_range(w("fov"), "fov", fov, 0.0 < fov < 180.0, "in (0, 180) degrees")
+        fov_axis = self.value(node, path, props, "fov_axis", STRING, "x")
+        if fov_axis not in FOV_AXES:
+            self.fail(w("fov_axis"), f'fov_axis "{fov_axis}" is not one of {", ".join(FOV_AXES)}')
+        near = self.value(node, path, props, "near_clip", FLOAT, 1e-2)
+        self.in_range(w("near_clip"), "near_clip", near, near > 0, "> 0")
+        far = self.value(node, path, props, "far_clip", FLOAT, 1e4)
+        self.in_range(w("far_clip"), "far_clip", far, far > near, f"> near_clip ({near})")
+        m = self.value(node, path, props, "to_world", TRANSFORM, np.eye(4))
+        lin = m[:3, :3]
+        if np.max(np.abs(lin.T @ lin - np.eye(3))) > 1e-3:
+            self.fail(w("to_world"), "the sensor's to_world may only rotate and translate "
+                                     "(scale factors are not allowed, as in Mitsuba)")
+        camera = Camera(to_world=m, fov=fov, fov_axis=fov_axis, near_clip=near, far_clip=far)
+        scene = Scene(camera=camera)
+
+        sampler = self.one(objs, "sampler", where)
+        if sampler is not None:
+            s_spec = self.spec(sampler.node, sampler.path, ("sampler",))
+            s_props, _ = self.fields(sampler.node, sampler.path, s_spec)
+            sw = lambda k: _prop_where(sampler.node, sampler.path, k)  # noqa: E731
+            spp = self.value(sampler.node, sampler.path, s_props, "sample_count", INT, 4)
+            scene.spp = self.in_range(sw("sample_count"), "sample_count", spp, 0 < spp <= UINT32_MAX,
+                                      f"in [1, {UINT32_MAX}]")
+            seed = self.value(sampler.node, sampler.path, s_props, "seed", INT, 0)
+            scene.sampler_seed = self.in_range(sw("seed"), "seed", seed, 0 <= seed <= UINT32_MAX,
+                                               f"in [0, {UINT32_MAX}]")
+
+        film = self.one(objs, "film", where)
+        if film is not None:
+            f_spec = self.spec(film.node, film.path, ("film",))
+            f_props, f_objs = self.fields(film.node, film.path, f_spec)
+            fw = lambda k: _prop_where(film.node, film.path, k)  # noqa: E731
+            for key in ("width", "height"):
+                v = self.value(film.node, film.path, f_props, key, INT, getattr(scene, key))
+                setattr(scene, key, self.in_range(fw(key), key, v, 0 < v <= UINT32_MAX, f"in [1, {UINT32_MAX}]"))
+            pf = self.value(film.node, film.path, f_props, "pixel_format", STRING, "rgb")
+            if pf != "rgb":
+                self.fail(fw("pixel_format"), f'pixel_format "{pf}" is not supported (supported: rgb)')
+            cf = self.value(film.node, film.path, f_props, "component_format", STRING, "float16")
+            if cf not in ("float16", "float32"):
+                self.fail(fw("component_format"), f'component_format "{cf}" is not supported '
+                                                  f"(supported: float16, float32)")
+            rfilter = self.one(f_objs, "rfilter", _where(film.node, film.path))
+            if rfilter is not None:
+                r_spec = self.spec(rfilter.node, rfilter.path, ("rfilter",))
+                self.fields(rfilter.node, rfilter.path, r_spec)
+        return scene
+
+    def material(self, node: Mapping, path: str) -> Material:
+        key = id(node)
+        if key in self.materials:
+            return self.materials[key]
+        if key in self.visiting:
+            self.fail(_where(node, path), "a bsdf cannot contain itself")
+        self.visiting.add(key)
+        spec = self.spec(node, path, ("bsdf",))
+        props, objs = self.fields(node, path, spec)
+        t = node["type"]
+        w = lambda k: _prop_where(node, path, k)  # noqa: E731
+        if t == "twosided":
+            if not objs:
+                self.fail(_where(node, path), "twosided needs one nested bsdf (diffuse or conductor)")
+            if len(objs) > 1:
+                self.fail(_where(objs[1].node, objs[1].path), "twosided with two different bsdfs (front and back) "
+                                                              "is not supported: give one")
+            inner = self.material(objs[0].node, objs[0].path)
+            if inner.twosided:
+                self.fail(_where(objs[0].node, objs[0].path), "a twosided bsdf cannot be nested in a twosided bsdf")
+            mat = Material(inner.kind, inner.rgb, twosided=True)
+        elif t == "diffuse":
+            rgb = self.value(node, path, props, "reflectance", COLOR, (0.5, 0.5, 0.5))
+            mat = Material("diffuse", self.reflectance(w("reflectance"), "reflectance", rgb))
+        else:  # conductor
+            name = self.value(node, path, props, "material", STRING, "none")
+            if name != "none":
+                self.fail(w("material"), f'conductor material "{name}" is not supported '
+                                         f'(supported: none, a perfect mirror scaled by specular_reflectance)')
+            rgb = self.value(node, path, props, "specular_reflectance", COLOR, (1.0, 1.0, 1.0))
+            mat = Material("mirror", self.reflectance(w("specular_reflectance"), "specular_reflectance", rgb))
+        self.visiting.discard(key)
+        self.materials[key] = mat
+        return mat
+
+    def reflectance(self, where: str, key: str, rgb: tuple) -> tuple:
+        if not all(0.0 <= c <= 1.0 for c in rgb):
+            self.fail(where, f"{key} must lie in [0, 1] (got {list(rgb)})")
+        return rgb
+
+    def shape(self, node: Mapping, path: str, key, scene: Scene):
+        spec = self.spec(node, path, ("shape",))
+        props, objs = self.fields(node, path, spec)
+        where = _where(node, path)
+        t = node["type"]
+        w = lambda k: _prop_where(node, path, k)  # noqa: E731
+        if self.value(node, path, props, "flip_normals", BOOL, False):
+            self.fail(w("flip_normals"), "flip_normals=true is not supported (turn the shape with to_world)")
+        m = self.value(node, path, props, "to_world", TRANSFORM, np.eye(4))
+        bsdf = self.one(objs, "bsdf", where)
+        emitter = self.one(objs, "emitter", where)
+
+        radiance = None
+        if emitter is not None:
+            e_spec = self.spec(emitter.node, emitter.path, ("emitter",))
+            e_props, _ = self.fields(emitter.node, emitter.path, e_spec)
+            radiance = self.value(emitter.node, emitter.path, e_props, "radiance", COLOR, (1.0, 1.0, 1.0))
+            if not all(c >= 0.0 for c in radiance):
+                self.fail(_prop_where(emitter.node, emitter.path, "radiance"),
+                          f"radiance must be >= 0 (got {list(radiance)})")
+        if bsdf is not None:
+            material = self.material(bsdf.node, bsdf.path)
+        elif emitter is not None:
+            material = Material("diffuse", (0.0, 0.0, 0.0))  # Mitsuba: an emitter's default bsdf is black
+        else:
+            material = DEFAULT_MATERIAL
+        mat_index = scene.add_material(material)
+        name = node.get("id") if isinstance(node.get("id"), str) else None
+        if name is None:
+            name = str(key) if not (isinstance(node, XmlDict) or str(key).startswith("_arg_")) else t
+
+        lin = m[:3, :3]
+        if t == "sphere":
+            center = self.value(node, path, props, "center", POINT, np.zeros(3))
+            radius = self.value(node, path, props, "radius", FLOAT, 1.0)
+            self.in_range(w("radius"), "radius", radius, radius > 0, "> 0")
+            # Mitsuba: to_world @ translate(center) @ scale(radius); to_world must be a similarity.
+            s2 = float(np.mean(np.sum(lin * lin, axis=0)))
+            if not (s2 > 0 and np.max(np.abs(lin.T @ lin / s2 - np.eye(3))) <= 1e-6):
+                self.fail(w("to_world"), "a sphere's to_world may only translate, rotate and scale uniformly")
+            if np.linalg.det(lin) < 0:
+                self.fail(w("to_world"), "a sphere's to_world must not mirror (Mitsuba would turn its normals "
+                                         "inwards)")
+            scale = 1.0 if s2 == 1.0 else float(np.sqrt(s2))
+            sphere = Sphere(center=tf.transform_points(m, center), radius=scale * radius, material=mat_index)
+            if not (np.all(np.isfinite(sphere.center)) and np.isfinite(sphere.radius)):
+                self.fail(where, "the sphere's centre or radius overflows (not finite)")
+            scene.spheres.append(sphere)
+            return
+
+        if not _check_invertible(lin):
+            self.fail(w("to_world"), "to_world is singular (a zero scale flattens the shape)")
+        flip = np.linalg.det(lin) < 0
+        if t in ("rectangle", "cube"):
+            base_v, base_f = (_RECT_VERTICES, np.array([[0, 1, 2], [0, 2, 3]])) if t == "rectangle" else \
+                (_CUBE_VERTICES, _CUBE_FACES)
+            vertices = tf.transform_points(m, base_v)
+            faces = base_f[:, [0, 2, 1]] if flip else base_f.copy()
+            normals = None
+        else:
+            vertices, faces, normals = self.mesh_file(node, path, props, m, flip)
+        if not np.all(np.isfinite(vertices)) or (normals is not None and not np.all(np.isfinite(normals))):
+            self.fail(where, "to_world makes vertex positions or normals overflow (not finite)")
+        mesh = TriangleMesh(vertices=vertices, faces=faces.astype(np.int64), normals=normals,
+                            material=mat_index, name=name)
+        if radiance is not None:
+            normal = tf.normal_matrix(m) @ np.array([0.0, 0.0, 1.0])
+            scene.lights.append(RectLight(center=m[:3, 3].copy(), half_u=lin[:, 0].copy(), half_v=lin[:, 1].copy(),
+                                          normal=normal / np.linalg.norm(normal), radiance=radiance))
+            mesh.light = len(scene.lights) - 1
+        scene.meshes.append(mesh)
+
+    def mesh_file(self, node: Mapping, path: str, props: dict, m: np.ndarray, flip: bool):
+        where = _where(node, path)
+        filename = self.value(node, path, props, "filename", STRING)
+        if filename is None:
+            self.fail(where, f'{node["type"]} needs "filename"')
+        face_normals = self.value(node, path, props, "face_normals", BOOL, False)
+        self.value(node, path, props, "flip_tex_coords", BOOL, True)  # checked; no textures, so no effect
+        file = Path(filename)
+        if not file.is_absolute():
+            file = self.base_dir / file
+        try:
+            parts = meshio.read_mesh(file, node["type"])
+        except meshio.MeshFileError as e:
+            self.fail(where, f'mesh file "{filename}" {e}')
+        vs, fs, ns, offset = [], [], [], 0
+        for p in parts:
+            v = tf.transform_points(m, p.vertices)
+            f = p.faces
+            if face_normals:
+                n = None
+            elif p.normals is not None:
+                n = tf.transform_normals(m, p.normals)
+                if flip:  # keep the file's winding relative to its normals (Mitsuba shades by the normals)
+                    f = f[:, [0, 2, 1]]
+            else:
+                n = meshio.vertex_normals(v, f)
+            vs.append(v)
+            fs.append(f + offset)
+            ns.append(n)
+            offset += len(v)
+        normals = None if face_normals else np.concatenate(ns)
+        return np.concatenate(vs), np.concatenate(fs), normals

@@ -1,0 +1,141 @@
+"""Triangle meshes from OBJ and PLY files (read by trimesh) and Mitsuba's vertex-normal recomputation.
+
+``read_mesh`` returns the file's geometry in object space, one :class:`MeshPart` per trimesh
+geometry (an OBJ with several materials or objects gives several), each with the file's vertex
+normals or None where the file has none. Problems raise :class:`MeshFileError` with a one-line
+message; the loader turns it into a SceneError naming the scene element.
+"""
+
+from __future__ import annotations
+
+import io
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+
+class MeshFileError(Exception):
+    """A mesh file that cannot be used (missing, unreadable, not the format, no faces, bad numbers)."""
+
+
+@dataclass
+class MeshPart:
+    vertices: np.ndarray  # (N, 3) float64
+    faces: np.ndarray  # (M, 3) int64
+    normals: np.ndarray | None  # (N, 3) float64 as stored in the file (not normalized), or None
+
+
+def _one_line(e: BaseException) -> str:
+    text = " ".join(str(e).split())
+    return f"{type(e).__name__}: {text}" if text else type(e).__name__
+
+
+def _parts_from_kwargs(kwargs_list) -> list[MeshPart]:
+    parts = []
+    for kw in kwargs_list:
+        faces = kw.get("faces")
+        if faces is None or len(faces) == 0:
+            continue
+        vertices = np.asarray(kw["vertices"], dtype=np.float64).reshape(-1, 3)
+        faces = np.asarray(faces)
+        if faces.ndim != 2 or faces.shape[1] not in (3, 4):
+            raise MeshFileError(f"has faces that are not triangles or quads (shape {faces.shape})")
+        if faces.shape[1] == 4:  # fan-split quads as Mitsuba's OBJ reader does: (0,1,2), (0,2,3)
+            faces = np.concatenate([faces[:, [0, 1, 2]], faces[:, [0, 2, 3]]])
+        faces = faces.astype(np.int64)
+        normals = kw.get("vertex_normals")
+        if normals is not None:
+            normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
+            if normals.shape != vertices.shape:
+                normals = None
+        parts.append(MeshPart(vertices, faces, normals))
+    return parts
+
+
+def read_mesh(path: Path, kind: str) -> list[MeshPart]:
+    """Read an ``obj`` or ``ply`` file with trimesh (no merging or reordering of vertices)."""
+    from trimesh.exchange import obj as tobj
+    from trimesh.exchange import ply as tply
+
+    try:
+        data = Path(path).read_bytes()
+    except OSError as e:
+        raise MeshFileError(f"cannot be read ({e.strerror or _one_line(e)})") from None
+    if not data.strip():
+        raise MeshFileError("is empty")
+    if kind == "obj" and b"\0" in data:
+        raise MeshFileError("is binary data, not a text OBJ file")
+
+    # trimesh logs (and then skips) things like a missing .mtl; that is not our user's concern.
+    log = logging.getLogger("trimesh")
+    level = log.level
+    log.setLevel(logging.CRITICAL)
+    try:
+        if kind == "obj":
+            loaded = tobj.load_obj(io.BytesIO(data))
+            if "geometry" in loaded:
+                kwargs_list = list(loaded["geometry"].values())
+            else:
+                kwargs_list = [loaded] if "vertices" in loaded else []
+        elif kind == "ply":
+            kwargs_list = [tply.load_ply(io.BytesIO(data))]
+        else:  # pragma: no cover - the loader only asks for obj and ply
+            raise ValueError(kind)
+        parts = _parts_from_kwargs(kwargs_list)
+    except MeshFileError:
+        raise
+    except Exception as e:  # trimesh raises many kinds on malformed files
+        raise MeshFileError(f"could not be read as {kind.upper()} ({_one_line(e)})") from None
+    finally:
+        log.setLevel(level)
+
+    if not parts:
+        raise MeshFileError("has no faces")
+    for p in parts:
+        if p.faces.min() < 0 or p.faces.max() >= len(p.vertices):
+            raise MeshFileError("has a face that references a vertex that does not exist")
+        if not np.all(np.isfinite(p.vertices)):
+            raise MeshFileError("has a vertex position that is NaN or infinite")
+        if p.normals is not None:
+            lengths = np.linalg.norm(p.normals, axis=1)
+            if not np.all(np.isfinite(lengths)) or np.any(lengths == 0):
+                raise MeshFileError("has a vertex normal that is zero, NaN or infinite")
+    return parts
+
+
+def _unit_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angle between unit vectors (rows), numerically stable (Mitsuba's ``unit_angle``)."""
+    dot = np.einsum("ij,ij->i", a, b)
+    minus = 2.0 * np.arcsin(np.clip(np.linalg.norm(a - b, axis=1) / 2.0, 0.0, 1.0))
+    plus = np.pi - 2.0 * np.arcsin(np.clip(np.linalg.norm(a + b, axis=1) / 2.0, 0.0, 1.0))
+    return np.where(dot >= 0.0, minus, plus)
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Smooth vertex normals as Mitsuba's ``Mesh::recompute_vertex_normals``.
+
+    Each face adds its unit normal weighted by its corner angle at each of its vertices
+    (Thuermer and Wuethrich 1998); zero-area faces add nothing. A vertex whose sum is zero
+    (unused, or only on degenerate faces) gets (1, 0, 0), Mitsuba's placeholder.
+    """
+    v = [vertices[faces[:, i]] for i in range(3)]
+    n = np.cross(v[1] - v[0], v[2] - v[0])
+    length = np.linalg.norm(n, axis=1)
+    ok = length > 0
+    n = n[ok] / length[ok, None]
+    f = faces[ok]
+    v = [x[ok] for x in v]
+    out = np.zeros_like(vertices, dtype=np.float64)
+    for i in range(3):
+        e1 = v[(i + 1) % 3] - v[i]
+        e2 = v[(i + 2) % 3] - v[i]
+        e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+        e2 /= np.linalg.norm(e2, axis=1, keepdims=True)
+        np.add.at(out, f[:, i], n * _unit_angle(e1, e2)[:, None])
+    length = np.linalg.norm(out, axis=1)
+    bad = ~(length > 0)
+    out[bad] = (1.0, 0.0, 0.0)
+    length[bad] = 1.0
+    return out / length[:, None]
