@@ -266,7 +266,8 @@ def make_render_kernel(features: Features):
             accum[pixel] = accum[pixel] + L
             accum_sq[pixel] = accum_sq[pixel] + wp.cw_mul(L, L)
         else:
-            wp.atomic_add(discarded, 0, 1)
+            # one counter per worker: Warp's CPU atomics are plain adds, so concurrent workers must not share one
+            wp.atomic_add(discarded, params.row_offset, 1)
 
     return render_pass
 

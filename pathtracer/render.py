@@ -158,7 +158,7 @@ class Renderer:
         with wp.ScopedDevice(self.device):
             accum = wp.zeros(npix, dtype=wp.vec3)
             accum_sq = wp.zeros(npix, dtype=wp.vec3)
-            discarded = wp.zeros(1, dtype=wp.int32)
+            discarded = wp.zeros(self.threads, dtype=wp.int32)  # one counter per worker thread
         rows_of = [len(range(w, s.height, self.threads)) for w in range(self.threads)]
         it = s.integrator
 
@@ -211,7 +211,7 @@ class Renderer:
         shape = (s.height, s.width, 3)
         return PassSum(accum.numpy().reshape(shape).astype(np.float64),
                        accum_sq.numpy().reshape(shape).astype(np.float64),
-                       done, int(discarded.numpy()[0]), time.perf_counter() - t0)
+                       done, int(discarded.numpy().sum()), time.perf_counter() - t0)
 
 
 _lock = threading.Lock()

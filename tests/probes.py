@@ -1,0 +1,239 @@
+"""Probe kernels: each ``@wp.func`` of ``kernels/`` called from a tiny kernel, results written to arrays.
+
+All probes live in this one module so that Warp compiles them as one module (a cold CPU compile costs seconds
+per module). ``launch(kernel, n, device, inputs, outputs)`` is a small convenience wrapper.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from kernels.camera import camera_ray
+from kernels.integrator import light_sample_scale, self_mode
+from kernels.mesh import mesh_hit, smooth_normal, sphere_hit
+from kernels.offset import offset_origin
+from kernels.rng import rand4
+from kernels.sampling import cosine_hemisphere, orthonormal_basis, reflect, sample_cosine_around, sample_parallelogram
+from kernels.sphere import SELF_NONE, ray_sphere
+from kernels.types import CameraData, SceneData
+
+INF = wp.constant(3.0e38)
+
+
+@wp.kernel(enable_backward=False)
+def probe_rand(keys: wp.array(dtype=wp.vec3ui), dims: wp.array(dtype=wp.uint32), out: wp.array(dtype=wp.vec4)):
+    i = wp.tid()
+    out[i] = rand4(keys[i], dims[i])
+
+
+@wp.kernel(enable_backward=False)
+def probe_sampling(
+    ns: wp.array(dtype=wp.vec3),
+    ds: wp.array(dtype=wp.vec3),
+    us: wp.array(dtype=wp.vec4),
+    center: wp.vec3,
+    half_u: wp.vec3,
+    half_v: wp.vec3,
+    albedo: float,
+    basis: wp.array(dtype=wp.mat33),
+    cos_dir: wp.array(dtype=wp.vec3),
+    around: wp.array(dtype=wp.vec3),
+    par: wp.array(dtype=wp.vec3),
+    refl: wp.array(dtype=wp.vec3),
+    weight: wp.array(dtype=float),
+):
+    i = wp.tid()
+    n = ns[i]
+    u = us[i]
+    basis[i] = orthonormal_basis(n)
+    cos_dir[i] = cosine_hemisphere(u[0], u[1])
+    wi = sample_cosine_around(n, u[0], u[1])
+    around[i] = wi
+    par[i] = sample_parallelogram(center, half_u, half_v, u[2], u[3])
+    refl[i] = reflect(ds[i], n)
+    # Lambertian estimator weight f cos / pdf with pdf = cos / pi: should be exactly the albedo
+    c = wp.dot(n, wi)
+    weight[i] = (albedo / wp.pi) * c / (c / wp.pi)
+
+
+@wp.kernel(enable_backward=False)
+def probe_camera(
+    cam: CameraData,
+    cols: wp.array(dtype=wp.int32),
+    rows: wp.array(dtype=wp.int32),
+    jit: wp.array(dtype=wp.vec2),
+    out_o: wp.array(dtype=wp.vec3),
+    out_d: wp.array(dtype=wp.vec3),
+    out_tmax: wp.array(dtype=float),
+):
+    i = wp.tid()
+    r = camera_ray(cam, cols[i], rows[i], jit[i][0], jit[i][1])
+    out_o[i] = r.o
+    out_d[i] = r.d
+    out_tmax[i] = r.tmax
+
+
+@wp.kernel(enable_backward=False)
+def probe_sphere(
+    o: wp.array(dtype=wp.vec3),
+    d: wp.array(dtype=wp.vec3),
+    center: wp.array(dtype=wp.vec3),
+    radius: wp.array(dtype=float),
+    tmax: wp.array(dtype=float),
+    mode: wp.array(dtype=wp.int32),
+    out_t: wp.array(dtype=float),
+):
+    i = wp.tid()
+    out_t[i] = ray_sphere(o[i], d[i], center[i], radius[i], tmax[i], mode[i])
+
+
+@wp.kernel(enable_backward=False)
+def probe_mesh(
+    scene: SceneData,
+    o: wp.array(dtype=wp.vec3),
+    d: wp.array(dtype=wp.vec3),
+    out_face: wp.array(dtype=wp.int32),
+    out_t: wp.array(dtype=float),
+    out_uv: wp.array(dtype=wp.vec2),
+    out_p: wp.array(dtype=wp.vec3),
+    out_ng: wp.array(dtype=wp.vec3),
+    out_ns: wp.array(dtype=wp.vec3),
+):
+    i = wp.tid()
+    q = wp.mesh_query_ray(scene.mesh, o[i], d[i], INF)
+    if q.result:
+        h = mesh_hit(scene, o[i], d[i], q)
+        out_face[i] = q.face
+        out_t[i] = h.t
+        out_uv[i] = wp.vec2(q.u, q.v)
+        out_p[i] = h.p
+        out_ng[i] = h.ng
+        out_ns[i] = smooth_normal(scene, q.face, q.u, q.v, h.ng)
+    else:
+        out_face[i] = -1
+        out_t[i] = -1.0
+
+
+@wp.kernel(enable_backward=False)
+def probe_respawn_mesh(
+    scene: SceneData,
+    o: wp.array(dtype=wp.vec3),
+    d: wp.array(dtype=wp.vec3),
+    w: wp.array(dtype=wp.vec3),
+    use_offset: int,
+    out_face: wp.array(dtype=wp.int32),
+    out_face2: wp.array(dtype=wp.int32),
+    out_t2: wp.array(dtype=float),
+):
+    """Hit a triangle, spawn a ray toward ``w`` from the offset hit point (the bare point if ``use_offset`` is 0),
+    report what it hits first."""
+    i = wp.tid()
+    out_face[i] = -1
+    out_face2[i] = -1
+    out_t2[i] = -1.0
+    q = wp.mesh_query_ray(scene.mesh, o[i], d[i], INF)
+    if q.result:
+        h = mesh_hit(scene, o[i], d[i], q)
+        out_face[i] = q.face
+        o2 = h.p
+        if use_offset != 0:
+            o2 = offset_origin(h.p, h.ng, h.scale, w[i])
+        q2 = wp.mesh_query_ray(scene.mesh, o2, w[i], INF)
+        if q2.result:
+            out_face2[i] = q2.face
+            out_t2[i] = q2.t
+
+
+@wp.kernel(enable_backward=False)
+def probe_respawn_sphere(
+    scene: SceneData,
+    o: wp.array(dtype=wp.vec3),
+    d: wp.array(dtype=wp.vec3),
+    idx: wp.array(dtype=wp.int32),
+    w: wp.array(dtype=wp.vec3),
+    out_t: wp.array(dtype=float),
+    out_p: wp.array(dtype=wp.vec3),
+    out_ng: wp.array(dtype=wp.vec3),
+    out_t2: wp.array(dtype=float),
+    out_t2_none: wp.array(dtype=float),
+):
+    """Hit sphere ``idx``, spawn toward ``w`` as the integrator does (offset + self mode) and re-intersect it:
+    ``out_t2`` with the integrator's self mode, ``out_t2_none`` with the offset alone."""
+    i = wp.tid()
+    k = idx[i]
+    c = scene.sphere_center[k]
+    r = scene.sphere_radius[k]
+    t = ray_sphere(o[i], d[i], c, r, INF, SELF_NONE)
+    out_t[i] = t
+    out_t2[i] = -2.0
+    out_t2_none[i] = -2.0
+    if t >= 0.0:
+        h = sphere_hit(scene, o[i], d[i], t, k)
+        out_p[i] = h.p
+        out_ng[i] = h.ng
+        o2 = offset_origin(h.p, h.ng, h.scale, w[i])
+        out_t2[i] = ray_sphere(o2, w[i], c, r, INF, self_mode(k, k, h.ng, w[i]))
+        out_t2_none[i] = ray_sphere(o2, w[i], c, r, INF, SELF_NONE)
+
+
+@wp.kernel(enable_backward=False)
+def probe_shadow(
+    scene: SceneData,
+    o: wp.array(dtype=wp.vec3),
+    d: wp.array(dtype=wp.vec3),
+    uv: wp.array(dtype=wp.vec2),
+    out_status: wp.array(dtype=wp.int32),
+):
+    """The integrator's shadow segment from a surface hit to a sample on light 0.
+
+    status: -1 no usable pair (missed, hit the light, or the pair faces away), 0 visible, 1 occluded.
+    """
+    i = wp.tid()
+    out_status[i] = -1
+    q = wp.mesh_query_ray(scene.mesh, o[i], d[i], INF)
+    if not q.result:
+        return
+    h = mesh_hit(scene, o[i], d[i], q)
+    if h.light >= 0:
+        return
+    ng = h.ng
+    if wp.dot(d[i], ng) > 0.0:
+        ng = -ng
+    y = sample_parallelogram(scene.light_center[0], scene.light_half_u[0], scene.light_half_v[0], uv[i][0], uv[i][1])
+    to_y = y - h.p
+    w = wp.normalize(to_y)
+    ln = scene.light_normal[0]
+    if wp.dot(ng, w) <= 0.0 or wp.dot(ln, w) >= 0.0:
+        return
+    so = offset_origin(h.p, ng, h.scale, w)
+    se = offset_origin(y, ln, light_sample_scale(scene, 0), -w)
+    seg = se - so
+    seg_len = wp.length(seg)
+    out_status[i] = wp.where(wp.mesh_query_ray_anyhit(scene.mesh, so, seg / seg_len, seg_len), 1, 0)
+
+
+# ------------------------------------------------------------------------------------------------
+
+
+def arr(a, dtype, device):
+    """numpy -> wp.array (float32/int32/uint32 as the dtype needs)."""
+    if dtype in (wp.vec3, wp.vec4, wp.vec2, float, wp.mat33):
+        a = np.ascontiguousarray(a, dtype=np.float32)
+    elif dtype in (wp.int32,):
+        a = np.ascontiguousarray(a, dtype=np.int32)
+    elif dtype in (wp.uint32, wp.vec3ui):
+        a = np.ascontiguousarray(a, dtype=np.uint32)
+    return wp.array(a, dtype=dtype, device=device)
+
+
+def launch(kernel, n: int, device: str, inputs: list, outputs: list):
+    """Launch ``kernel`` over n threads; ``outputs`` lists the dtypes of its output arrays (length n each).
+
+    Returns numpy copies of the outputs (one array, or a list of them).
+    """
+    outs = [wp.zeros(n, dtype=dtype, device=device) for dtype in outputs]
+    wp.launch(kernel, dim=n, inputs=inputs, outputs=outs, device=device)
+    wp.synchronize_device(device)
+    res = [o.numpy().copy() for o in outs]
+    return res[0] if len(res) == 1 else res

@@ -1,0 +1,263 @@
+"""The pass-based driver (pathtracer/render.py): determinism, merging of PassSums, callbacks, stats, option checks,
+and the compile-time specialisation of the integrator kernel."""
+
+from __future__ import annotations
+
+import glob
+import os
+import re
+
+import numpy as np
+import pytest
+import warp as wp
+
+import pathtracer
+from helpers import add_sphere, make_scene, material, square
+from kernels.integrator import RR_THROUGHPUT, VIEW_RADIANCE, Features
+from pathtracer.device_scene import DeviceScene
+from pathtracer.errors import RenderError
+from pathtracer.render import PassSum, Renderer
+
+U32 = 2.0**-24  # unit roundoff of float32
+
+
+def box_scene(width=24, height=16, spheres=False):
+    """A small Cornell-like box: five walls, a ceiling light (lowered 1e-3 below the ceiling), no spheres unless
+    asked: it shares its compiled variant (meshes + lights) with the analytic tests."""
+    scene = make_scene((0, 0, 7), (0, 0, 4), 45, width, height, fov_axis="y", max_depth=4)
+    white = material(scene, "diffuse", (0.725, 0.71, 0.68))
+    red = material(scene, "diffuse", (0.63, 0.065, 0.05))
+    green = material(scene, "diffuse", (0.14, 0.45, 0.091))
+    black = material(scene, "diffuse", 0.0)
+    for c, n, m in [((0, -2, 0), (0, 1, 0), white), ((0, 2, 0), (0, -1, 0), white), ((-2, 0, 0), (1, 0, 0), red),
+                    ((2, 0, 0), (-1, 0, 0), green), ((0, 0, -2), (0, 0, 1), white)]:
+        square(scene, c, 4.0, n, m)
+    square(scene, (0, 1.999, 0), 1.0, (0, -1, 0), black, radiance=30.0)
+    if spheres:
+        # a mirror sphere: the same variant (meshes + spheres + mirrors + lights) as the analytic tests use
+        add_sphere(scene, (0.75, -1.4, 0.55), 0.6, material(scene, "mirror", 0.89))
+    return scene
+
+
+def render(scene, **kw):
+    kw.setdefault("progress", False)
+    return pathtracer.render(scene, **kw)
+
+
+# ------------------------------------------------------------------------------------------------
+# determinism
+
+
+def test_same_inputs_bit_identical_and_finite(device):
+    scene = box_scene()
+    st = {}
+    a = render(scene, spp=4, seed=7, device=device, stats=st)
+    b = render(scene, spp=4, seed=7, device=device)
+    assert a.dtype == np.float32 and a.shape == (16, 24, 3)
+    assert np.array_equal(a, b)
+    assert np.isfinite(a).all() and st["discarded"] == 0
+    assert a.mean() > 0.05  # not a black image
+
+
+def test_thread_count_does_not_change_the_image():
+    scene = box_scene()
+    imgs = [render(scene, spp=3, seed=2, device="cpu", threads=t) for t in (1, 2, 3, 16)]
+    for img in imgs[1:]:
+        assert np.array_equal(imgs[0], img)
+
+
+def test_different_seeds_differ(device):
+    scene = box_scene()
+    a = render(scene, spp=2, seed=0, device=device)
+    b = render(scene, spp=2, seed=1, device=device)
+    assert (a != b).any(axis=2).mean() > 0.5
+    # and different pass ranges of one seed differ too
+    r = Renderer(scene, device=device)
+    assert (r.render_passes(seed=0, first_pass=0, count=1).sum != r.render_passes(seed=0, first_pass=1, count=1).sum).any()
+
+
+def test_cpu_and_cuda_agree_statistically():
+    """CPU and GPU draw the same random numbers: per-seed image means agree under a Welch test, and most pixels
+    agree to float rounding (a few paths may diverge on rounding differences)."""
+    if not wp.is_cuda_available():
+        pytest.skip("needs a CUDA device")
+    scene = box_scene()
+    cpu = [render(scene, spp=4, seed=s, device="cpu") for s in range(16)]
+    gpu = [render(scene, spp=4, seed=s, device="cuda:0") for s in range(16)]
+    mc, mg = np.array([i.mean() for i in cpu]), np.array([i.mean() for i in gpu])
+    z = (mc.mean() - mg.mean()) / np.sqrt(mc.var(ddof=1) / 16 + mg.var(ddof=1) / 16 + 1e-30)
+    assert abs(z) <= 4
+    rel = np.abs(cpu[0] - gpu[0]) / np.maximum(np.abs(cpu[0]), 1e-3)
+    assert np.median(rel) < 1e-3
+
+
+# ------------------------------------------------------------------------------------------------
+# PassSum merging
+
+
+def test_passsum_merging(device):
+    """Passes 0..3 + passes 4..7 == passes 0..7.
+
+    The device accumulates each call's passes in float32, one pixel at a time in pass order, so:
+    - the first 4 passes of the 8-pass call are bit-identical to the 4-pass call (seen through the callback);
+    - the merged sum equals the one-call sum only up to float32 rounding (the one call rounds the running sum of 8
+      terms, the merge rounds two 4-term sums then adds them in float64): |difference| <= ~14 u sum.
+    """
+    scene = box_scene()
+    r = Renderer(scene, device=device)
+    first = r.render_passes(seed=11, first_pass=0, count=4)
+    second = r.render_passes(seed=11, first_pass=4, count=4)
+    snapshots = {}
+    whole = r.render_passes(seed=11, first_pass=0, count=8,
+                            callback=lambda i, s: snapshots.__setitem__(i, (s.sum.copy(), s.sum_sq.copy())))
+    merged = first + second
+    assert isinstance(merged, PassSum) and merged.passes == whole.passes == 8
+    assert merged.discarded == whole.discarded == 0
+    assert sorted(snapshots) == list(range(8))
+    assert np.array_equal(snapshots[3][0], first.sum) and np.array_equal(snapshots[3][1], first.sum_sq)
+    for m, w in ((merged.sum, whole.sum), (merged.sum_sq, whole.sum_sq)):
+        assert (np.abs(m - w) <= 14 * U32 * np.abs(w) + 1e-30).all()
+    assert np.abs(merged.mean - whole.mean).max() <= 14 * U32 * np.abs(whole.mean).max()
+    # the variance estimate of the merged sums is finite and equals the one-call one to rounding
+    assert np.allclose(merged.variance_of_mean, whole.variance_of_mean, rtol=1e-3, atol=1e-9)
+    # a 1-pass sum has no variance estimate
+    assert np.isinf(r.render_passes(seed=11, count=1).variance_of_mean).all()
+
+
+def test_callback_and_early_stop(device):
+    scene = box_scene()
+    calls = []
+    render(scene, spp=5, seed=1, device=device, callback=lambda i, s: calls.append((i, s.passes)))
+    assert calls == [(i, i + 1) for i in range(5)]
+    # returning False stops after that pass; nothing done is lost
+    r = Renderer(scene, device=device)
+    stopped = r.render_passes(seed=1, count=10, callback=lambda i, s: i < 2)
+    assert stopped.passes == 3
+    assert np.array_equal(stopped.sum, r.render_passes(seed=1, count=3).sum)
+
+
+def test_stats_are_filled(device):
+    scene = box_scene()
+    st = {}
+    render(scene, spp=3, seed=0, device=device, stats=st, threads=2)
+    assert st["spp"] == 3 and st["samples"] == 3 * 24 * 16
+    assert st["discarded"] == 0
+    assert st["device"] == device
+    assert st["threads"] == (2 if device == "cpu" else 1)
+    assert st["seconds"] > 0 and st["compile_seconds"] >= 0
+
+
+# ------------------------------------------------------------------------------------------------
+# option checks
+
+
+BAD_OPTIONS = [
+    {"spp": 0},
+    {"spp": -3},
+    {"spp": 1.5},
+    {"device": "tpu"},
+    {"view": "x"},
+    {"rr": "x"},
+    {"max_depth": 0},
+    {"max_depth": -2},
+    {"seed": -1},
+    {"seed": 2**32},
+    {"threads": 0},
+    {"light_samples": 0},
+]
+
+
+@pytest.mark.parametrize("opts", BAD_OPTIONS, ids=lambda o: "-".join(f"{k}={v}" for k, v in o.items()))
+def test_bad_options_raise_render_error(opts):
+    opts = {"spp": 1, "device": "cpu", **opts}
+    with pytest.raises(RenderError):
+        render(box_scene(8, 8), **opts)
+
+
+def test_cuda_without_a_gpu_is_a_render_error():
+    if wp.is_cuda_available():
+        pytest.skip("a CUDA device is present")
+    with pytest.raises(RenderError):
+        render(box_scene(8, 8), spp=1, device="cuda")
+
+
+def test_extreme_but_valid_options(device):
+    scene = box_scene(8, 8)
+    for opts in ({"seed": 2**32 - 1}, {"max_depth": 1}, {"max_depth": -1, "rr": "seed"}, {"rr": "none"},
+                 {"light_samples": 3}):
+        img = render(scene, spp=1, device=device, **opts)
+        assert np.isfinite(img).all(), opts
+
+
+# ------------------------------------------------------------------------------------------------
+# specialisation: a sphere-free scene gets a kernel without sphere code
+
+
+SPHERE_CODE = ("ray_sphere", "sphere_hit", "occluded_spheres", "self_mode", "(var_scene).sphere_",
+               "(var_scene).num_spheres")
+
+
+def generated_source(kernel) -> str:
+    """Warp's generated C++ for the (loaded) module of ``kernel``: the .cpp Warp keeps in its kernel cache, or, if
+    that is gone, the module's code generator run again."""
+    module = kernel.module
+    paths = glob.glob(os.path.join(wp.config.kernel_cache_dir, f"wp_{module.name}_*", "*.cpp"))
+    if paths:
+        with open(paths[0]) as f:
+            return f.read()
+    from warp._src.context import ModuleBuilder  # private API: only a fallback
+
+    return ModuleBuilder(module, module.options | {"output_arch": None}, target="cpu").codegen("cpu")
+
+
+def test_sphere_free_scene_gets_a_kernel_without_sphere_code():
+    scene = box_scene(8, 8)
+    f = DeviceScene.features(scene)
+    assert f == Features(meshes=True, spheres=False, mirrors=False, smooth_normals=False, lights=True,
+                         view=VIEW_RADIANCE, rr=RR_THROUGHPUT)
+    r = Renderer(scene, device="cpu")
+    assert r.features == f
+    src = generated_source(r.kernel)
+    assert "render_pass" in src
+    found = [s for s in SPHERE_CODE if s in src]
+    assert not found, f"sphere code in a sphere-free variant: {found}"
+    # control: the variant with spheres does contain it
+    rs = Renderer(box_scene(8, 8, spheres=True), device="cpu")
+    assert rs.features.spheres and rs.kernel is not r.kernel
+    src_s = generated_source(rs.kernel)
+    assert all(s in src_s for s in SPHERE_CODE)
+    # and the variant without spheres is smaller
+    assert len(re.findall(r"\bvar_\d+\b", src)) < len(re.findall(r"\bvar_\d+\b", src_s))
+
+
+# ------------------------------------------------------------------------------------------------
+# non-finite samples
+
+
+def _infinite_light_scene(width, height):
+    """Every camera ray sees a light of infinite radiance: every sample is non-finite and must be discarded."""
+    from helpers import add_rect
+
+    scene = make_scene((0, 0, 0), (0, 0, -1), 20, width, height)
+    add_rect(scene, (0, 0, -2), (2, 0, 0), (0, 2, 0), (0, 0, 1), material(scene, "diffuse", 0.0),
+             radiance=(np.inf, 1.0, 1.0))
+    return scene
+
+
+def test_non_finite_samples_are_discarded_and_counted(device):
+    scene = _infinite_light_scene(16, 16)
+    st = {}
+    with pytest.warns(RuntimeWarning, match="non-finite"):
+        img = render(scene, spp=3, max_depth=1, device=device, stats=st, threads=1)
+    assert np.isfinite(img).all() and (img == 0).all()
+    assert st["discarded"] == 3 * 16 * 16
+
+
+def test_discarded_count_is_exact_with_worker_threads():
+    """Regression: worker threads once shared one counter, and Warp's CPU atomic_add is a plain +=."""
+    W = H = 512
+    scene = _infinite_light_scene(W, H)
+    st = {}
+    with pytest.warns(RuntimeWarning, match="non-finite"):
+        render(scene, spp=8, max_depth=1, device="cpu", stats=st, threads=2)
+    assert st["discarded"] == 8 * W * H
