@@ -68,7 +68,7 @@ def render_figure(key: str, scale: float, out: Path, spp_scale: float = 1.0) -> 
     image = pathtracer.render(scene, spp=spp, max_depth=f.max_depth, view=f.view, rr=f.rr, stats=stats,
                               progress=False)
     path = out / f"{f.name}.png"
-    pathtracer.write_image(str(path), image)
+    pathtracer.write_image(str(path), image, display=f.view != "radiance")
     print(f"figure {key:>2}: {path} {scene.width}x{scene.height} {spp} spp, {stats['seconds']:.1f} s render, "
           f"{time.perf_counter() - t0:.1f} s total")
     return path

@@ -202,7 +202,7 @@ def run(args: argparse.Namespace) -> int:
                 warnings.filterwarnings("ignore", message=r".*non-finite samples", category=RuntimeWarning)
             image = pathtracer.render(scene, **kwargs)
         elapsed = time.perf_counter() - t0
-        write_image(args.output, image)
+        write_image(args.output, image, display=args.view != "radiance")
     except PathtracerError as e:
         return _error(_one_line(e))
     except OSError as e:  # e.g. an unreadable scene file the loader did not wrap

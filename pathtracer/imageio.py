@@ -83,8 +83,11 @@ def _write_png(path: str, image: np.ndarray) -> None:
 # --- public API ---------------------------------------------------------------------------------
 
 
-def write_image(path: str | os.PathLike, image: np.ndarray) -> None:
+def write_image(path: str | os.PathLike, image: np.ndarray, *, display: bool = False) -> None:
     """Write an (H, W, 3) linear image: ``.exr`` as float32 RGB, ``.png`` as 8-bit sRGB.
+
+    ``display=True`` says the values are already display colours (the debug views' 0.5 v + 0.5, as the seed
+    shows them): a PNG then stores them without the sRGB curve. EXR always stores the values as given.
 
     Raises ImageIOError (one line naming the path) for an unsupported extension, a bad array or
     a file that cannot be written; the target is then left as it was.
@@ -95,6 +98,8 @@ def write_image(path: str | os.PathLike, image: np.ndarray) -> None:
     if image.ndim != 3 or image.shape[2] != 3 or image.shape[0] == 0 or image.shape[1] == 0:
         raise ImageIOError(f"{path}: cannot write: expected an (H, W, 3) image, got shape {image.shape}")
     image = np.ascontiguousarray(image, dtype=np.float32)
+    if display and ext == ".png":
+        image = srgb_to_linear(np.clip(image, 0.0, 1.0))  # the PNG encoder's sRGB curve then gives them back
 
     directory, name = os.path.split(os.path.abspath(path))
     tmp = os.path.join(directory, f".{name}.{secrets.token_hex(4)}.tmp{ext}")

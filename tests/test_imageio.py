@@ -261,3 +261,17 @@ def test_read_grayscale_and_rgba_png(tmp_path):
     assert g.shape == (2, 3, 3) and np.allclose(g, srgb_to_linear(np.uint8(188)))
     a = read_image(tmp_path / "a.png")
     assert a.shape == (2, 3, 3) and np.allclose(a, 1.0)
+
+
+def test_display_colours_are_stored_without_the_srgb_curve(tmp_path):
+    """Debug views (0.5 n + 0.5) are display colours: the PNG holds round(255 v), as the seed shows them."""
+    from PIL import Image
+
+    v = np.linspace(0.0, 1.0, 256, dtype=np.float32)
+    img = np.stack([v, v[::-1], np.full_like(v, 0.5)], axis=-1)[None]
+    path = tmp_path / "debug.png"
+    imageio.write_image(path, img, display=True)
+    got = np.asarray(Image.open(path)).astype(int)
+    np.testing.assert_array_equal(got[0], np.floor(img[0] * 255 + 0.5).astype(int))
+    imageio.write_image(tmp_path / "debug.exr", img, display=True)  # EXR keeps the values as given
+    np.testing.assert_array_equal(imageio.read_image(tmp_path / "debug.exr"), img)
