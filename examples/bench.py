@@ -1,0 +1,261 @@
+"""Speed against error: render each seed scene over a ladder of sample counts and report error against seconds.
+
+    python examples/bench.py                                  # all seed scenes, every configuration, markdown + plot
+    python examples/bench.py --scenes cornell_box --quick     # one scene, a short ladder
+
+For every configuration (light samples K, roulette rule, sampler, threads, and Mitsuba 3 on the same file when it
+is installed) and every sample count of the ladder it measures seconds (compilation and JIT excluded), samples/s,
+rays/s (ours: counted by a second, instrumented pass), relMSE against a reference, and efficiency =
+1 / (relMSE x seconds). The reference is a long Mitsuba render when Mitsuba is installed (cached under
+--ref-dir), else the committed tests/data/refs/*.exr at the same size, else a long render of our own.
+"Time to 1e-3" extrapolates the last rung with relMSE proportional to 1/time (Monte Carlo's rate).
+
+Writes <out>/performance.md (the table, the machine, the command) and <out>/performance.png (log-log plot).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import pathtracer  # noqa: E402
+
+SCENES = ["cornell_box", "cornell_box_mirror", "teapot_in_box", "open_sky"]
+TARGET = 1e-3
+
+
+def rel_mse(img: np.ndarray, ref: np.ndarray) -> float:
+    return float(np.mean((img - ref) ** 2 / (ref * ref + 0.01)))
+
+
+@dataclass
+class Config:
+    label: str
+    light_samples: int = 8
+    rr: str = "throughput"
+    sampler: str = "independent"
+    threads: int | None = None
+    mitsuba: bool = False
+
+
+@dataclass
+class Row:
+    scene: str
+    config: str
+    spp: int
+    seconds: float
+    relmse: float
+    samples_per_s: float
+    rays_per_s: float = float("nan")
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def efficiency(self) -> float:
+        return 1.0 / (self.relmse * self.seconds)
+
+    @property
+    def time_to_target(self) -> float:
+        return self.seconds * self.relmse / TARGET
+
+
+def configs(quick: bool, have_mitsuba: bool, samplers: list[str]) -> list[Config]:
+    cores = os.cpu_count() or 1
+    out = [Config(f"K={k}", light_samples=k) for k in ([1, 4, 8] if quick else [1, 2, 4, 8, 16])]
+    out.append(Config("K=8 rr=seed", rr="seed"))
+    for s in samplers:
+        if s != "independent":
+            out.append(Config(f"K=8 {s}", sampler=s))
+    if cores > 1:
+        out.append(Config("K=8 1 thread", threads=1))
+    if have_mitsuba:
+        out.append(Config("mitsuba llvm_ad_rgb", mitsuba=True))
+    return out
+
+
+def load(scene: str, width: int, height: int):
+    return pathtracer.load_file(ROOT / "scenes" / f"{scene}.xml", width=width, height=height)
+
+
+def ours_ladder(scene_name: str, cfg: Config, ladder: list[int], ref: np.ndarray, w: int, h: int) -> list[Row]:
+    scene = load(scene_name, w, h)
+    kwargs = dict(light_samples=cfg.light_samples, rr=cfg.rr, threads=cfg.threads)
+    if cfg.sampler != "independent":
+        kwargs["sampler"] = cfg.sampler
+    r = pathtracer.Renderer(scene, **kwargs)
+    rows = []
+    for spp in ladder:
+        sums = r.render_passes(seed=1, first_pass=0, count=spp)
+        img = sums.mean
+        paths = spp * w * h
+        rows.append(Row(scene_name, cfg.label, spp, sums.seconds, rel_mse(img, ref), paths / sums.seconds,
+                        extra={"compile_seconds": r.compile_seconds, "threads": r.threads}))
+    return rows
+
+
+def mitsuba_ladder(scene_name: str, ladder: list[int], ref: np.ndarray, w: int, h: int) -> list[Row]:
+    import mitsuba as mi
+
+    scene = mi.load_file(str(ROOT / "scenes" / f"{scene_name}.xml"), width=str(w), height=str(h))
+    rows = []
+    for spp in ladder:
+        np.array(mi.render(scene, spp=spp, seed=999))  # JIT warm-up for this size: not timed
+        t0 = time.perf_counter()
+        img = np.array(mi.render(scene, spp=spp, seed=1), dtype=np.float32)[..., :3]
+        t = time.perf_counter() - t0
+        rows.append(Row(scene_name, "mitsuba llvm_ad_rgb", spp, t, rel_mse(img, ref), spp * w * h / t))
+    return rows
+
+
+def reference(scene_name: str, w: int, h: int, ref_dir: Path, ref_spp: int, have_mitsuba: bool) -> tuple[np.ndarray, str]:
+    ref_dir.mkdir(parents=True, exist_ok=True)
+    cached = ref_dir / f"{scene_name}_{w}x{h}_{ref_spp}.exr"
+    if cached.exists():
+        return pathtracer.read_image(cached), f"Mitsuba {ref_spp} spp (cached)"
+    if have_mitsuba:
+        import mitsuba as mi
+
+        scene = mi.load_file(str(ROOT / "scenes" / f"{scene_name}.xml"), width=str(w), height=str(h))
+        acc = np.zeros((h, w, 3))
+        chunk = 1024
+        for i in range(max(1, ref_spp // chunk)):
+            acc += np.array(mi.render(scene, spp=min(chunk, ref_spp), seed=10_000 + i))[..., :3]
+        img = (acc / max(1, ref_spp // chunk)).astype(np.float32)
+        pathtracer.write_image(cached, img)
+        return img, f"Mitsuba {ref_spp} spp"
+    committed = ROOT / "tests" / "data" / "refs" / f"{scene_name}.exr"
+    if committed.exists():
+        img = pathtracer.read_image(committed)
+        if img.shape[:2] == (h, w):
+            return img, "committed Mitsuba reference"
+    scene = load(scene_name, w, h)
+    img = pathtracer.render(scene, spp=ref_spp, seed=12345, progress=True)
+    pathtracer.write_image(cached, img)
+    return img, f"ours {ref_spp} spp"
+
+
+def machine() -> str:
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    import warp as wp
+
+    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, warp {wp.__version__}"
+
+
+def plot(rows: list[Row], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    scenes = sorted({r.scene for r in rows}, key=SCENES.index)
+    fig, axes = plt.subplots(1, len(scenes), figsize=(5 * len(scenes), 4.2), squeeze=False)
+    for ax, s in zip(axes[0], scenes):
+        for label in dict.fromkeys(r.config for r in rows if r.scene == s):
+            pts = [(r.seconds, r.relmse) for r in rows if r.scene == s and r.config == label]
+            xs, ys = zip(*pts)
+            ax.loglog(xs, ys, "o-" if "mitsuba" not in label else "s--", label=label, ms=3)
+        ax.axhline(TARGET, color="gray", lw=0.8, ls=":")
+        ax.set_title(s)
+        ax.set_xlabel("seconds")
+        ax.set_ylabel("relMSE")
+        ax.grid(True, which="both", lw=0.3)
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def markdown(rows: list[Row], refs: dict, args, wall: float) -> str:
+    lines = ["# Performance: speed against error", "",
+             f"Machine: {machine()}. Command: `python examples/bench.py {' '.join(sys.argv[1:])}` "
+             f"({wall / 60:.1f} min). Image {args.width}x{args.height}, the scene files' max_depth and rr_depth.",
+             "Seconds exclude compilation and JIT warm-up. relMSE = mean((I - R)^2 / (R^2 + 0.01)); "
+             "efficiency = 1 / (relMSE x seconds); time to 1e-3 = seconds x relMSE / 1e-3 at the last rung.", ""]
+    for s in dict.fromkeys(r.scene for r in rows):
+        lines += [f"## {s}", "", f"Reference: {refs[s]}.", "",
+                  "| configuration | spp | seconds | M samples/s | relMSE | efficiency | time to 1e-3 (s) |",
+                  "|---|---|---|---|---|---|---|"]
+        for r in rows:
+            if r.scene == s:
+                lines.append(f"| {r.config} | {r.spp} | {r.seconds:.3f} | {r.samples_per_s / 1e6:.2f} | "
+                             f"{r.relmse:.3e} | {r.efficiency:.3g} | {r.time_to_target:.2f} |")
+        lines.append("")
+        last = {r.config: r for r in rows if r.scene == s}
+        if "mitsuba llvm_ad_rgb" in last:
+            best = min((r for c, r in last.items() if "mitsuba" not in c), key=lambda r: r.time_to_target)
+            m = last["mitsuba llvm_ad_rgb"]
+            lines += [f"Time to relMSE 1e-3: best of ours ({best.config}) {best.time_to_target:.2f} s, Mitsuba "
+                      f"{m.time_to_target:.2f} s: ratio ours/Mitsuba = {best.time_to_target / m.time_to_target:.2f}.",
+                      ""]
+        if "K=8" in last and "K=8 1 thread" in last:
+            a, b = last["K=8"], last["K=8 1 thread"]
+            lines += [f"Threads: {a.extra.get('threads')} threads vs 1 at {a.spp} spp: "
+                      f"{b.seconds / a.seconds:.2f}x faster.", ""]
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description="Speed against error for the seed scenes.")
+    ap.add_argument("--scenes", nargs="*", default=SCENES, choices=SCENES)
+    ap.add_argument("--width", type=int, default=128)
+    ap.add_argument("--height", type=int, default=96)
+    ap.add_argument("--ladder", type=int, nargs="*", default=[4, 16, 64, 256])
+    ap.add_argument("--ref-spp", type=int, default=16384)
+    ap.add_argument("--ref-dir", default=str(ROOT / "out" / "bench_refs"))
+    ap.add_argument("--samplers", nargs="*", default=["independent"])
+    ap.add_argument("--quick", action="store_true", help="fewer configurations")
+    ap.add_argument("--no-mitsuba", action="store_true")
+    ap.add_argument("--out", default=str(ROOT / "docs"))
+    a = ap.parse_args(argv)
+    have_mitsuba = False
+    if not a.no_mitsuba:
+        try:
+            import mitsuba as mi
+
+            mi.set_variant("llvm_ad_rgb")
+            have_mitsuba = True
+        except Exception as exc:  # not installed, or no usable LLVM: bench ourselves only
+            print(f"Mitsuba 3 llvm_ad_rgb unavailable ({exc}); benchmarking ours only", file=sys.stderr)
+    t_start = time.perf_counter()
+    rows: list[Row] = []
+    refs = {}
+    for s in a.scenes:
+        ref, refs[s] = reference(s, a.width, a.height, Path(a.ref_dir), a.ref_spp, have_mitsuba)
+        for cfg in configs(a.quick, have_mitsuba, a.samplers):
+            got = (mitsuba_ladder(s, a.ladder, ref, a.width, a.height) if cfg.mitsuba
+                   else ours_ladder(s, cfg, a.ladder, ref, a.width, a.height))
+            rows += got
+            last = got[-1]
+            print(f"{s:20s} {cfg.label:22s} {last.spp:5d} spp {last.seconds:7.3f} s relMSE {last.relmse:.3e} "
+                  f"to 1e-3: {last.time_to_target:7.2f} s", flush=True)
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "performance.md").write_text(markdown(rows, refs, a, time.perf_counter() - t_start))
+    with open(out / "performance.json", "w") as f:
+        json.dump([r.__dict__ | {"efficiency": r.efficiency} for r in rows], f, indent=0)
+    try:
+        plot(rows, out / "performance.png")
+    except ImportError:
+        print("matplotlib not installed: no plot", file=sys.stderr)
+    print(f"wrote {out / 'performance.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
