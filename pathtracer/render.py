@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import threading
 import time
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable
@@ -21,6 +22,7 @@ import warp as wp
 from kernels.integrator import RR_RULES, VIEWS, render_kernel
 from kernels.types import PassParams
 from pathtracer.device_scene import DeviceScene
+from pathtracer.diagnostics import roulette_variance_warning
 from pathtracer.errors import RenderError
 from pathtracer.scene import Scene
 from pathtracer.warp_setup import init_warp
@@ -240,21 +242,24 @@ def render(
     rr_depth, default) or "seed" (stop with probability 0.2 after the first bounce). threads: CPU worker
     threads (default: all cores); the image does not depend on it. view: "radiance", "direction" or "normal".
     callback(pass_index, PassSum) runs after each pass. stats, if given, receives seconds, compile_seconds,
-    samples, discarded, spp, threads, device.
+    samples, discarded, spp, threads, device, roulette_warning (None, or why the seed roulette rule has an
+    infinite variance on this scene).
     """
     spp = scene.spp if spp is None else spp
     spp = _check_int("spp", spp, 1)
     seed = scene.sampler_seed if seed is None else seed
     r = Renderer(scene, device=device, max_depth=max_depth, light_samples=light_samples, rr=rr,
                  view=view, threads=threads)
+    roulette_warning = roulette_variance_warning(scene, r.rr, r.max_depth)
+    if roulette_warning:  # detected and reported before any time is spent, never silently averaged
+        warnings.warn(f"{scene.source}: {roulette_warning}", RuntimeWarning, stacklevel=2)
     sums = r.render_passes(seed=seed, first_pass=0, count=spp, progress=progress, callback=callback)
     if sums.discarded:
-        import warnings
-
         warnings.warn(f"{scene.source}: {sums.discarded} non-finite samples were discarded", RuntimeWarning,
                       stacklevel=2)
     if stats is not None:
         stats.update(seconds=sums.seconds, compile_seconds=r.compile_seconds,
                      samples=sums.passes * scene.width * scene.height, discarded=sums.discarded,
-                     spp=sums.passes, threads=r.threads, device=r.device)
+                     spp=sums.passes, threads=r.threads, device=r.device,
+                     roulette_warning=roulette_warning)
     return sums.mean
