@@ -19,6 +19,7 @@ import warp as wp
 from kernels.camera import camera_ray
 from kernels.mesh import mesh_hit, smooth_normal, sphere_hit
 from kernels.offset import max_abs, offset_origin
+from kernels.quad import occluded_quads, quad_hit, ray_quad
 from kernels.rng import rand4
 from kernels.sampling import reflect, sample_cosine_around, sample_parallelogram
 from kernels.sphere import SELF_FAR, SELF_NONE, SELF_SKIP, ray_sphere
@@ -42,11 +43,12 @@ INF = wp.constant(3.0e38)
 class Features:
     """What one compiled variant contains. Two scenes with equal features share a kernel."""
 
-    meshes: bool
+    meshes: bool  # triangles in the BVH
     spheres: bool
     mirrors: bool
     smooth_normals: bool
     lights: bool
+    quads: bool = False  # analytic parallelograms (rectangles, cube faces)
     view: int = VIEW_RADIANCE
     rr: int = RR_THROUGHPUT
 
@@ -81,6 +83,7 @@ def light_sample_scale(scene: SceneData, light: int) -> float:
 def make_render_kernel(features: Features):
     """Compile-time specialised integrator kernel for ``features`` (see module docstring)."""
     HAS_MESH = features.meshes
+    HAS_QUADS = features.quads
     HAS_SPHERES = features.spheres
     HAS_MIRROR = features.mirrors
     HAS_SMOOTH = features.smooth_normals
@@ -120,6 +123,7 @@ def make_render_kernel(features: Features):
         count_emission = bool(True)  # camera ray or mirror bounce: emission at the next hit counts
         origin_sphere = int(-1)  # sphere the current ray starts on, -1 if none
         origin_normal = wp.vec3(0.0)  # outward normal of that sphere at the origin
+        origin_quad = int(-1)  # quad the current ray starts on (it cannot hit that plane again), -1 if none
 
         if wp.static(VIEW == VIEW_DIRECTION):
             L = 0.5 * d + wp.vec3(0.5)
@@ -129,8 +133,25 @@ def make_render_kernel(features: Features):
                 hit = Hit()
                 hit.t = tmax
                 found = bool(False)
+                if wp.static(HAS_QUADS):
+                    # first, so that the BVH query below gets the nearest quad's distance as its limit
+                    best_quad = int(-1)
+                    o64 = wp.vec3d(o)
+                    d64 = wp.vec3d(d)
+                    t_quad = wp.float64(tmax)
+                    for i in range(scene.num_quads):
+                        if i == origin_quad:
+                            continue
+                        tq = ray_quad(o64, d64, scene.quad_center[i], scene.quad_normal[i], scene.quad_ustar[i],
+                                      scene.quad_vstar[i], t_quad)
+                        if tq > wp.float64(0.0):
+                            t_quad = tq
+                            best_quad = i
+                    if best_quad >= 0:
+                        hit = quad_hit(scene, o64, d64, t_quad, best_quad)
+                        found = True
                 if wp.static(HAS_MESH):
-                    q = wp.mesh_query_ray(scene.mesh, o, d, tmax)
+                    q = wp.mesh_query_ray(scene.mesh, o, d, hit.t)
                     if q.result:
                         hit = mesh_hit(scene, o, d, q)
                         if wp.static(HAS_SMOOTH):
@@ -214,8 +235,11 @@ def make_render_kernel(features: Features):
                                     continue
                                 sd = seg / seg_len
                                 blocked = bool(False)
+                                if wp.static(HAS_QUADS):
+                                    blocked = occluded_quads(scene, so, sd, seg_len, hit.quad, scene.light_quad[l])
                                 if wp.static(HAS_MESH):
-                                    blocked = wp.mesh_query_ray_anyhit(scene.mesh, so, sd, seg_len)
+                                    if not blocked:
+                                        blocked = wp.mesh_query_ray_anyhit(scene.mesh, so, sd, seg_len)
                                 if wp.static(HAS_SPHERES):
                                     if not blocked:
                                         blocked = occluded_spheres(scene, so, sd, seg_len, hit.sphere, hit.ng)
@@ -259,6 +283,7 @@ def make_render_kernel(features: Features):
                 d = wi
                 tmax = INF
                 origin_sphere = hit.sphere
+                origin_quad = hit.quad
                 origin_normal = hit.ng
 
         # ---------------- film ----------------

@@ -28,6 +28,7 @@ def mesh_hit(scene: SceneData, o: wp.vec3, d: wp.vec3, q: wp.MeshQueryRay) -> Hi
     h.material = scene.face_material[q.face]
     h.light = scene.face_light[q.face]
     h.sphere = -1
+    h.quad = -1
     return h
 
 
@@ -57,4 +58,5 @@ def sphere_hit(scene: SceneData, o: wp.vec3, d: wp.vec3, t: float, i: int) -> Hi
     h.material = scene.sphere_material[i]
     h.light = -1
     h.sphere = i
+    h.quad = -1
     return h

@@ -31,6 +31,16 @@ class SceneData:
     sphere_radius: wp.array(dtype=float)
     sphere_material: wp.array(dtype=wp.int32)
     num_spheres: int
+    quad_center: wp.array(dtype=wp.vec3d)  # analytic parallelograms (kernels/quad.py), float64
+    quad_normal: wp.array(dtype=wp.vec3d)  # unit, the winding normal of the triangles the quad stands for
+    quad_half_u: wp.array(dtype=wp.vec3d)
+    quad_half_v: wp.array(dtype=wp.vec3d)
+    quad_ustar: wp.array(dtype=wp.vec3d)  # dual basis: s = (p - center) . ustar
+    quad_vstar: wp.array(dtype=wp.vec3d)
+    quad_scale: wp.array(dtype=float)  # largest absolute corner coordinate (for ray offsets)
+    quad_material: wp.array(dtype=wp.int32)
+    quad_light: wp.array(dtype=wp.int32)  # area light index, -1 if the quad does not emit
+    num_quads: int
     mat_kind: wp.array(dtype=wp.int32)  # 0 diffuse, 1 mirror
     mat_rgb: wp.array(dtype=wp.vec3)
     mat_twosided: wp.array(dtype=wp.int32)
@@ -41,6 +51,7 @@ class SceneData:
     light_radiance: wp.array(dtype=wp.vec3)
     light_area: wp.array(dtype=float)
     num_lights: int
+    light_quad: wp.array(dtype=wp.int32)  # the quad that is light l, -1 if it is triangles
 
 
 @wp.struct
@@ -75,4 +86,5 @@ class Hit:
     scale: float  # magnitude of the coordinates p was computed from (for ray offsets)
     material: int
     light: int  # -1 if the surface does not emit
-    sphere: int  # sphere index, -1 for a triangle
+    sphere: int  # sphere index, -1 otherwise
+    quad: int  # quad index, -1 otherwise

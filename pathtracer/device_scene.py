@@ -1,17 +1,24 @@
-"""Uploads a ``Scene`` to one Warp device: the one ``wp.Mesh`` of every triangle, and flat arrays for the rest."""
+"""Uploads a ``Scene`` to one Warp device: rectangles and cubes as analytic quads, the one ``wp.Mesh`` of every
+other triangle, and flat arrays for the rest."""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
 
 from kernels.integrator import RR_RULES, VIEWS, Features
 from kernels.types import CameraData, SceneData
-from pathtracer.scene import MIRROR, Scene
+from pathtracer.scene import MIRROR, Scene, TriangleMesh
 
 
 def _vec3(a, device) -> wp.array:
     return wp.array(np.asarray(a, dtype=np.float32).reshape(-1, 3), dtype=wp.vec3, device=device)
+
+
+def _vec3d(a, device) -> wp.array:
+    return wp.array(np.asarray(a, dtype=np.float64).reshape(-1, 3), dtype=wp.vec3d, device=device)
 
 
 def _arr(a, dtype, device) -> wp.array:
@@ -25,12 +32,80 @@ def _face_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
 
 
+QUAD_SHAPES = ("rectangle", "cube")
+PARALLELOGRAM_TOL = 1e-7  # relative: far below float32 resolution
+
+
+@dataclass
+class Quad:
+    """One parallelogram ``center + s half_u + r half_v`` (|s|, |r| <= 1) with the winding normal of its triangles."""
+
+    center: np.ndarray
+    half_u: np.ndarray
+    half_v: np.ndarray
+    normal: np.ndarray
+    scale: float  # largest absolute corner coordinate
+    material: int
+    light: int
+
+    def duals(self) -> tuple[np.ndarray, np.ndarray]:
+        """(ustar, vstar): s = (p - center) . ustar, r = (p - center) . vstar for p on the plane."""
+        det = float(np.dot(self.normal, np.cross(self.half_u, self.half_v)))
+        return np.cross(self.half_v, self.normal) / det, np.cross(self.normal, self.half_u) / det
+
+
+def mesh_quads(m: TriangleMesh) -> list[Quad] | None:
+    """The parallelograms a rectangle or cube mesh is made of (faces 2k and 2k+1 share a diagonal), or None when the
+    mesh is not one, or its triangles do not pair into non-degenerate parallelograms (then it stays triangles)."""
+    if m.shape not in QUAD_SHAPES or m.normals is not None or len(m.faces) % 2 or not len(m.faces):
+        return None
+    quads = []
+    v = m.vertices
+    for f0, f1 in zip(m.faces[0::2], m.faces[1::2]):
+        shared = [i for i in f0 if i in f1]
+        if len(shared) != 2 or len(set(f0)) != 3 or len(set(f1)) != 3:
+            return None
+        a, c = v[shared[0]], v[shared[1]]
+        b = v[[i for i in f0 if i not in shared][0]]
+        d = v[[i for i in f1 if i not in shared][0]]
+        corners = np.array([a, b, c, d])
+        scale = float(np.abs(corners).max())
+        if not np.abs(a + c - b - d).max() <= PARALLELOGRAM_TOL * scale:
+            return None
+        n0 = np.cross(v[f0[1]] - v[f0[0]], v[f0[2]] - v[f0[0]])
+        n1 = np.cross(v[f1[1]] - v[f1[0]], v[f1[2]] - v[f1[0]])
+        len0 = float(np.linalg.norm(n0))
+        if not (len0 > 0 and np.dot(n0, n1) > 0):
+            return None
+        q = Quad(center=corners.mean(axis=0), half_u=0.25 * ((b - a) + (c - d)), half_v=0.25 * ((d - a) + (c - b)),
+                 normal=n0 / len0, scale=scale, material=m.material, light=m.light)
+        det = float(np.dot(q.normal, np.cross(q.half_u, q.half_v)))
+        if not abs(det) > 1e-6 * float(np.linalg.norm(q.half_u) * np.linalg.norm(q.half_v)):
+            return None
+        quads.append(q)
+    return quads
+
+
+def split_scene(scene: Scene) -> tuple[list[Quad], list[TriangleMesh]]:
+    """Rectangles and cubes as analytic quads; every other (non-empty) mesh stays triangles in the BVH."""
+    quads, tri = [], []
+    for m in scene.meshes:
+        if not len(m.faces):
+            continue
+        q = mesh_quads(m)
+        if q is None:
+            tri.append(m)
+        else:
+            quads += q
+    return quads, tri
+
+
 class DeviceScene:
     """Device-side copy of a scene; keeps the arrays (and the BVH) alive while kernels use them."""
 
     def __init__(self, scene: Scene, device: str):
         self.device = device
-        tri = [m for m in scene.meshes if len(m.faces)]
+        quads, tri = split_scene(scene)
         if tri:
             offsets = np.cumsum([0] + [len(m.vertices) for m in tri[:-1]])
             points = np.concatenate([m.vertices for m in tri])
@@ -66,6 +141,23 @@ class DeviceScene:
         d.sphere_material = _arr([s.material for s in scene.spheres], wp.int32, device)
         d.num_spheres = len(scene.spheres)
 
+        self.quads = quads
+        duals = [q.duals() for q in quads]
+        d.quad_center = _vec3d([q.center for q in quads], device)
+        d.quad_normal = _vec3d([q.normal for q in quads], device)
+        d.quad_half_u = _vec3d([q.half_u for q in quads], device)
+        d.quad_half_v = _vec3d([q.half_v for q in quads], device)
+        d.quad_ustar = _vec3d([u for u, _ in duals], device)
+        d.quad_vstar = _vec3d([v for _, v in duals], device)
+        d.quad_scale = _arr([q.scale for q in quads], wp.float32, device)
+        d.quad_material = _arr([q.material for q in quads], wp.int32, device)
+        d.quad_light = _arr([q.light for q in quads], wp.int32, device)
+        d.num_quads = len(quads)
+        light_quad = np.full(len(scene.lights), -1)
+        for i, q in enumerate(quads):
+            if q.light >= 0:
+                light_quad[q.light] = i
+
         d.mat_kind = _arr([m.code for m in scene.materials], wp.int32, device)
         d.mat_rgb = _vec3([m.rgb for m in scene.materials], device)
         d.mat_twosided = _arr([int(m.twosided) for m in scene.materials], wp.int32, device)
@@ -78,6 +170,7 @@ class DeviceScene:
         d.light_radiance = _vec3([l.radiance for l in lights], device)
         d.light_area = _arr([l.area for l in lights], wp.float32, device)
         d.num_lights = len(lights)
+        d.light_quad = _arr(light_quad, wp.int32, device)
         self.data = d
         self.camera = camera_data(scene)
 
@@ -85,12 +178,14 @@ class DeviceScene:
     def features(scene: Scene, view: str = "radiance", rr: str = "throughput") -> Features:
         """The compile-time features ``scene`` needs: nothing it does not use."""
         used = {s.material for s in scene.spheres} | {m.material for m in scene.meshes if len(m.faces)}
+        quads, tri = split_scene(scene)
         return Features(
-            meshes=scene.triangle_count > 0,
+            meshes=len(tri) > 0,
             spheres=len(scene.spheres) > 0,
             mirrors=any(scene.materials[i].code == MIRROR for i in used),
-            smooth_normals=any(m.normals is not None and len(m.faces) for m in scene.meshes),
+            smooth_normals=any(m.normals is not None for m in tri),
             lights=len(scene.lights) > 0,
+            quads=len(quads) > 0,
             view=VIEWS[view],
             rr=RR_RULES[rr],
         )

@@ -632,7 +632,7 @@ class _Builder:
         if not np.all(np.isfinite(vertices)) or (normals is not None and not np.all(np.isfinite(normals))):
             self.fail(where, "to_world makes vertex positions or normals overflow (not finite)")
         mesh = TriangleMesh(vertices=vertices, faces=faces.astype(np.int64), normals=normals,
-                            material=mat_index, name=name)
+                            material=mat_index, name=name, shape=t if t in ("rectangle", "cube") else "mesh")
         if radiance is not None:
             normal = tf.normal_matrix(m) @ np.array([0.0, 0.0, 1.0])
             scene.lights.append(RectLight(center=m[:3, 3].copy(), half_u=lin[:, 0].copy(), half_v=lin[:, 1].copy(),

@@ -79,6 +79,8 @@ class TriangleMesh:
     """Triangles in world space. ``normals`` are per-vertex shading normals, or None for flat shading.
 
     ``light`` is the index of the area light this mesh emits as (a rectangle), or -1.
+    ``shape`` says what the triangles stand for: "rectangle" (2 triangles: one parallelogram), "cube" (12: six
+    parallelograms, two triangles each) or "mesh"; rectangles and cubes are rendered as analytic quads.
     """
 
     vertices: np.ndarray  # (N, 3) float64
@@ -87,6 +89,7 @@ class TriangleMesh:
     material: int
     light: int = -1
     name: str = ""
+    shape: str = "mesh"
 
 
 @dataclass

@@ -13,6 +13,7 @@ from kernels.camera import camera_ray
 from kernels.integrator import light_sample_scale, self_mode
 from kernels.mesh import mesh_hit, smooth_normal, sphere_hit
 from kernels.offset import offset_origin
+from kernels.quad import quad_hit, ray_quad
 from kernels.rng import rand4
 from kernels.sampling import cosine_hemisphere, orthonormal_basis, reflect, sample_cosine_around, sample_parallelogram
 from kernels.sphere import SELF_NONE, ray_sphere
@@ -211,6 +212,64 @@ def probe_shadow(
     seg = se - so
     seg_len = wp.length(seg)
     out_status[i] = wp.where(wp.mesh_query_ray_anyhit(scene.mesh, so, seg / seg_len, seg_len), 1, 0)
+
+
+@wp.kernel(enable_backward=False)
+def probe_quads(
+    scene: SceneData,
+    o: wp.array(dtype=wp.vec3),
+    d: wp.array(dtype=wp.vec3),
+    w: wp.array(dtype=wp.vec3),
+    direct: wp.array(dtype=wp.int32),
+    tmax: wp.array(dtype=float),
+    out_t_direct: wp.array(dtype=float),
+    out_q: wp.array(dtype=wp.int32),
+    out_t: wp.array(dtype=float),
+    out_p: wp.array(dtype=wp.vec3),
+    out_self_t: wp.array(dtype=float),
+    out_q2: wp.array(dtype=wp.int32),
+):
+    """Quads (kernels/quad.py): ``ray_quad`` against quad ``direct[i]`` with ``tmax[i]`` (t_direct); the nearest quad
+    over all (q, t, p from ``quad_hit``); then, as the integrator spawns, a ray toward ``w`` from the offset hit point:
+    ``self_t`` is ray_quad on the same quad with no skip (should miss), ``q2`` the nearest quad skipping it."""
+    i = wp.tid()
+    k = direct[i]
+    o64 = wp.vec3d(o[i])
+    d64 = wp.vec3d(d[i])
+    out_t_direct[i] = float(ray_quad(o64, d64, scene.quad_center[k], scene.quad_normal[k], scene.quad_ustar[k],
+                               scene.quad_vstar[k], wp.float64(tmax[i])))
+    best = int(-1)
+    t_best = wp.float64(float(INF))  # float(): a fresh variable (wp.float64(INF) alone is the shared constant)
+    for j in range(scene.num_quads):
+        t = ray_quad(o64, d64, scene.quad_center[j], scene.quad_normal[j], scene.quad_ustar[j], scene.quad_vstar[j],
+                     t_best)
+        if t > wp.float64(0.0):
+            t_best = t
+            best = j
+    out_q[i] = best
+    out_t[i] = -1.0
+    out_self_t[i] = -2.0
+    out_q2[i] = -2
+    if best >= 0:
+        h = quad_hit(scene, o64, d64, t_best, best)
+        out_t[i] = h.t
+        out_p[i] = h.p
+        o2 = offset_origin(h.p, h.ng, h.scale, w[i])
+        o2_64 = wp.vec3d(o2)
+        w64 = wp.vec3d(w[i])
+        out_self_t[i] = float(ray_quad(o2_64, w64, scene.quad_center[best], scene.quad_normal[best],
+                                       scene.quad_ustar[best], scene.quad_vstar[best], wp.float64(INF)))
+        best2 = int(-1)
+        t2 = wp.float64(float(INF))
+        for j in range(scene.num_quads):
+            if j == best:
+                continue
+            tj = ray_quad(o2_64, w64, scene.quad_center[j], scene.quad_normal[j], scene.quad_ustar[j],
+                          scene.quad_vstar[j], t2)
+            if tj > wp.float64(0.0):
+                t2 = tj
+                best2 = j
+        out_q2[i] = best2
 
 
 # ------------------------------------------------------------------------------------------------

@@ -230,6 +230,30 @@ def test_sphere_free_scene_gets_a_kernel_without_sphere_code():
     assert len(re.findall(r"\bvar_\d+\b", src)) < len(re.findall(r"\bvar_\d+\b", src_s))
 
 
+QUAD_CODE = ("ray_quad", "quad_hit", "occluded_quads", "(var_scene).quad_", "(var_scene).num_quads",
+             "(var_scene).light_quad")
+MESH_CODE = ("mesh_query_ray", "mesh_hit", "(var_scene).mesh", "(var_scene).indices")
+
+
+def test_quads_only_where_the_scene_has_them_and_no_bvh_code_without_triangles():
+    # the helpers' rectangles are plain triangle meshes: no quad code
+    r = Renderer(box_scene(8, 8), device="cpu")
+    assert r.features.meshes and not r.features.quads
+    src = generated_source(r.kernel)
+    assert "mesh_query_ray" in src
+    found = [s for s in QUAD_CODE if s in src]
+    assert not found, f"quad code in a quad-free variant: {found}"
+    # the Cornell box file: rectangles, a cube and a sphere, all analytic: quad code and no BVH code at all
+    scene = pathtracer.load_file(os.path.join(os.path.dirname(__file__), "..", "scenes", "cornell_box.xml"),
+                                 width=8, height=8)
+    rq = Renderer(scene, device="cpu")
+    assert rq.features.quads and not rq.features.meshes and rq.features.spheres
+    src_q = generated_source(rq.kernel)
+    assert all(s in src_q for s in QUAD_CODE)
+    found = [s for s in MESH_CODE if s in src_q]
+    assert not found, f"BVH code in a variant without triangles: {found}"
+
+
 # ------------------------------------------------------------------------------------------------
 # non-finite samples
 
