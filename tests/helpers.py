@@ -175,3 +175,142 @@ def chi2_stat(counts, expected) -> float:
     counts = np.asarray(counts, dtype=np.float64)
     expected = np.asarray(expected, dtype=np.float64)
     return float(((counts - expected) ** 2 / expected).sum())
+
+
+# ------------------------------------------------------------------------------------------------
+# scene transforms (hard cases: the same scene at other scales and places)
+
+# Scene-model attribute names by how a similarity transform acts on them. transform_scene refuses any other array
+# attribute, so a new primitive kind must be added here rather than silently left in place.
+_POINT_ATTRS = {"center", "vertices", "points", "origin", "corner", "p0"}
+_VECTOR_ATTRS = {"half_u", "half_v", "u", "v", "edge_u", "edge_v", "e1", "e2"}
+_NORMAL_ATTRS = {"normal", "normals"}
+_LENGTH_ATTRS = {"radius"}
+
+
+def similarity(scale: float = 1.0, translate=(0.0, 0.0, 0.0), rotate=None) -> np.ndarray:
+    """4x4 matrix x -> R (scale x) + translate (R a 3x3 rotation, identity by default)."""
+    m = np.eye(4)
+    r = np.eye(3) if rotate is None else np.asarray(rotate, dtype=np.float64)
+    m[:3, :3] = float(scale) * r
+    m[:3, 3] = np.asarray(translate, dtype=np.float64)
+    return m
+
+
+def transform_scene(scene: Scene, matrix) -> Scene:
+    """A deep copy of ``scene`` with its geometry, lights and camera moved by the similarity ``matrix``
+    (uniform scale, rotation, translation): the same picture, in other world coordinates.
+
+    Radiance is invariant under a similarity, so a correct renderer gives the same image within noise. Points and
+    centres get the full transform, edge vectors the linear part, normals the rotation, radii and the camera's
+    clip distances the scale.
+    """
+    import copy
+    import dataclasses
+
+    m = np.asarray(matrix, dtype=np.float64)
+    a, t = m[:3, :3], m[:3, 3]
+    s = float(np.linalg.norm(a[:, 0]))
+    if not (s > 0 and np.linalg.det(a) > 0 and np.allclose(a.T @ a, s * s * np.eye(3), rtol=1e-12, atol=0)):
+        raise ValueError("transform_scene needs a similarity (uniform scale, rotation, translation; no mirroring)")
+    rot = a / s
+    out = copy.deepcopy(scene)
+
+    def move(obj):
+        for f in dataclasses.fields(obj):
+            val = getattr(obj, f.name)
+            if f.name in _LENGTH_ATTRS:
+                setattr(obj, f.name, type(val)(val * s))
+            elif isinstance(val, np.ndarray) and val.dtype.kind == "f":
+                pts = val.reshape(-1, 3)
+                if f.name in _POINT_ATTRS:
+                    new = pts @ a.T + t
+                elif f.name in _VECTOR_ATTRS:
+                    new = pts @ a.T
+                elif f.name in _NORMAL_ATTRS:
+                    new = pts @ rot.T
+                else:
+                    raise ValueError(f"transform_scene: unknown array attribute {type(obj).__name__}.{f.name}")
+                setattr(obj, f.name, new.reshape(val.shape))
+
+    for f in dataclasses.fields(out):
+        items = getattr(out, f.name)
+        if isinstance(items, list):
+            for obj in items:
+                if dataclasses.is_dataclass(obj) and not isinstance(obj, Material):
+                    move(obj)
+    cam = out.camera
+    c2w = np.asarray(cam.to_world, dtype=np.float64).copy()
+    c2w[:3, :3] = rot @ c2w[:3, :3]
+    c2w[:3, 3] = a @ c2w[:3, 3] + t
+    cam.to_world = c2w
+    cam.near_clip = cam.near_clip * s
+    cam.far_clip = cam.far_clip * s
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# two noisy images of the same quantity
+
+
+def compare_within_noise(a, b, z_max: float = 4.0) -> dict:
+    """Per-pixel, per-channel z of the difference of two independent renders (anything with ``mean`` and
+    ``variance_of_mean``, e.g. ``PassSum``), and the z of the mean difference over the whole image.
+
+    A value whose two variances are both 0 has z = 0 when the values are equal and inf otherwise.
+    Images are (H, W, C). Returns pass_rate (fraction of values with |z| <= z_max), max_abs_z, mean_z (whole-image
+    mean difference over its standard error, counting the channels of a pixel as fully correlated), n (number of
+    values) and rel_diff (mean difference over the mean of the two images).
+    """
+    ma, mb = np.asarray(a.mean, np.float64), np.asarray(b.mean, np.float64)
+    va, vb = np.asarray(a.variance_of_mean, np.float64), np.asarray(b.variance_of_mean, np.float64)
+    diff = ma - mb
+    var = va + vb
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(var > 0, diff / np.sqrt(var), np.where(diff == 0, 0.0, np.inf))
+    az = np.abs(z)
+    n = diff.size
+    # The channels of a pixel share their paths (in a grey scene they are equal), so the whole-image mean is taken
+    # over pixels of channel means, whose standard error is bounded by the mean of the channel standard errors.
+    px_diff = diff.reshape(-1, diff.shape[-1]).mean(axis=1)
+    px_se = np.sqrt(var.reshape(-1, var.shape[-1])).mean(axis=1)
+    mean_se = math.sqrt(float((px_se**2).sum())) / len(px_se)
+    mean_diff = float(px_diff.mean())
+    if mean_se > 0:
+        mean_z = mean_diff / mean_se
+    else:
+        mean_z = 0.0 if mean_diff == 0 else math.inf
+    scale = 0.5 * (abs(float(ma.mean())) + abs(float(mb.mean())))
+    return dict(pass_rate=float((az <= z_max).mean()), max_abs_z=float(az.max()), mean_z=float(mean_z), n=n,
+                rel_diff=mean_diff / scale if scale > 0 else 0.0, z=z)
+
+
+def camera_directions(scene: Scene, col, row, jx, jy) -> np.ndarray:
+    """World-space unit directions of the camera rays through film points (col + jx, row + jy), row 0 at the top:
+    the mapping of kernels/camera.py (Mitsuba's frame, local +x is image left), in float64."""
+    tan_x, tan_y = scene.camera.tan_half_fov(scene.width, scene.height)
+    fx = (np.asarray(col, np.float64) + jx) / scene.width
+    fy = (np.asarray(row, np.float64) + jy) / scene.height
+    local = np.stack(np.broadcast_arrays((1.0 - 2.0 * fx) * tan_x, (1.0 - 2.0 * fy) * tan_y, 1.0), axis=-1)
+    d = local @ np.asarray(scene.camera.to_world, np.float64)[:3, :3].T
+    return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+def pixel_average(scene: Scene, f, sub: int = 8, with_variance: bool = False):
+    """(H, W, ...) mean of ``f(directions)`` over a sub x sub grid of film points in every pixel (midpoint rule).
+
+    with_variance: also return the variance of f over those points, which is the variance of one jittered sample
+    of the pixel when f is deterministic per ray (the normal view, the emission seen directly).
+    """
+    rows, cols = np.mgrid[0:scene.height, 0:scene.width]
+    offs = (np.arange(sub) + 0.5) / sub
+    acc = acc2 = None
+    for jy in offs:
+        for jx in offs:
+            v = np.asarray(f(camera_directions(scene, cols, rows, jx, jy)), np.float64)
+            acc = v if acc is None else acc + v
+            acc2 = v * v if acc2 is None else acc2 + v * v
+    mean = acc / (sub * sub)
+    if not with_variance:
+        return mean
+    return mean, np.maximum(acc2 / (sub * sub) - mean * mean, 0.0)
