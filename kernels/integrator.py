@@ -21,6 +21,7 @@ from kernels.mesh import mesh_hit, smooth_normal, sphere_hit
 from kernels.offset import max_abs, offset_origin
 from kernels.quad import occluded_quads, quad_hit, ray_quad
 from kernels.rng import rand4
+from kernels.sobol import sobol4
 from kernels.sampling import reflect, sample_cosine_around, sample_parallelogram
 from kernels.sphere import SELF_FAR, SELF_NONE, SELF_SKIP, ray_sphere
 from kernels.types import CameraData, Hit, PassParams, SceneData
@@ -34,6 +35,14 @@ RR_NONE = 0
 RR_SEED = 1  # the seed's rule: after the first bounce stop with probability 0.2, survivors / 0.8
 RR_THROUGHPUT = 2  # Mitsuba's: from rr_depth on, continue with probability min(max(beta), 0.95)
 RR_RULES = {"none": RR_NONE, "seed": RR_SEED, "throughput": RR_THROUGHPUT}
+
+SAMPLER_INDEPENDENT = 0  # pcg4d hash of (pixel, pass, seed, dim): independent uniforms
+SAMPLER_SOBOL = 1  # Owen-scrambled, shuffled Sobol' points indexed by pass: stratified across passes
+SAMPLERS = {"independent": SAMPLER_INDEPENDENT, "sobol": SAMPLER_SOBOL}
+
+# A light wins a tie with a surface coplanar with it (the seed's light sits in its ceiling's plane): its distance
+# may exceed the other's by this relative margin, far above the quads' float64 rounding and far below any real gap.
+COPLANAR_TOL = wp.constant(wp.float64(1.0e-9))
 
 SEED_RR_LAMBDA = wp.constant(0.2)
 INF = wp.constant(3.0e38)
@@ -51,6 +60,8 @@ class Features:
     quads: bool = False  # analytic parallelograms (rectangles, cube faces)
     view: int = VIEW_RADIANCE
     rr: int = RR_THROUGHPUT
+    sampler: int = SAMPLER_INDEPENDENT
+    count_rays: bool = False  # instrumented variant for benchmarks: counts closest-hit and shadow rays
 
 
 @wp.func
@@ -90,6 +101,8 @@ def make_render_kernel(features: Features):
     HAS_LIGHTS = features.lights
     VIEW = features.view
     RR = features.rr
+    COUNT_RAYS = features.count_rays
+    draw4 = sobol4 if features.sampler == SAMPLER_SOBOL else rand4  # picked at compile time
 
     @wp.kernel(enable_backward=False, module="unique")
     def render_pass(
@@ -97,9 +110,10 @@ def make_render_kernel(features: Features):
         cam: CameraData,
         params: PassParams,
         # outputs
-        accum: wp.array(dtype=wp.vec3),
-        accum_sq: wp.array(dtype=wp.vec3),
+        accum: wp.array(dtype=wp.vec3d),
+        accum_sq: wp.array(dtype=wp.vec3d),
         discarded: wp.array(dtype=wp.int32),
+        ray_count: wp.array(dtype=wp.int64),
     ):
         tid = wp.tid()
         col = tid % cam.width
@@ -110,7 +124,7 @@ def make_render_kernel(features: Features):
         key = wp.vec3ui(wp.uint32(pixel), params.pass_index, params.seed)
 
         # ---------------- camera ray ----------------
-        jitter = rand4(key, wp.uint32(0))
+        jitter = wp.static(draw4)(key, wp.uint32(0))
         ray = camera_ray(cam, col, row, jitter[0], jitter[1])
         o = ray.o
         d = ray.d
@@ -124,6 +138,7 @@ def make_render_kernel(features: Features):
         origin_sphere = int(-1)  # sphere the current ray starts on, -1 if none
         origin_normal = wp.vec3(0.0)  # outward normal of that sphere at the origin
         origin_quad = int(-1)  # quad the current ray starts on (it cannot hit that plane again), -1 if none
+        rays = wp.int64(0)  # rays traced (counted only in the instrumented variant)
 
         if wp.static(VIEW == VIEW_DIRECTION):
             L = 0.5 * d + wp.vec3(0.5)
@@ -133,25 +148,38 @@ def make_render_kernel(features: Features):
                 hit = Hit()
                 hit.t = tmax
                 found = bool(False)
+                if wp.static(COUNT_RAYS):
+                    rays += wp.int64(1)
                 if wp.static(HAS_QUADS):
                     # first, so that the BVH query below gets the nearest quad's distance as its limit
                     best_quad = int(-1)
                     o64 = wp.vec3d(o)
                     d64 = wp.vec3d(d)
                     t_quad = wp.float64(tmax)
+                    best_is_light = bool(False)
                     for i in range(scene.num_quads):
                         if i == origin_quad:
                             continue
+                        is_light = scene.quad_light[i] >= 0
+                        limit = t_quad
+                        if is_light:
+                            limit = t_quad * (wp.float64(1.0) + COPLANAR_TOL)
+                        elif best_is_light:
+                            limit = t_quad * (wp.float64(1.0) - COPLANAR_TOL)
                         tq = ray_quad(o64, d64, scene.quad_center[i], scene.quad_normal[i], scene.quad_ustar[i],
-                                      scene.quad_vstar[i], t_quad)
+                                      scene.quad_vstar[i], limit)
                         if tq > wp.float64(0.0):
                             t_quad = tq
                             best_quad = i
+                            best_is_light = is_light
                     if best_quad >= 0:
                         hit = quad_hit(scene, o64, d64, t_quad, best_quad)
                         found = True
                 if wp.static(HAS_MESH):
-                    q = wp.mesh_query_ray(scene.mesh, o, d, hit.t)
+                    mesh_limit = hit.t
+                    if found and hit.light >= 0:
+                        mesh_limit = hit.t * (1.0 - 1.0e-5)  # the light also wins a float32 tie with a triangle
+                    q = wp.mesh_query_ray(scene.mesh, o, d, mesh_limit)
                     if q.result:
                         hit = mesh_hit(scene, o, d, q)
                         if wp.static(HAS_SMOOTH):
@@ -214,7 +242,7 @@ def make_render_kernel(features: Features):
                             l_scale = light_sample_scale(scene, l)
                             Ll = float(0.0)
                             for k in range(params.light_samples):
-                                u = rand4(key, dim)
+                                u = wp.static(draw4)(key, dim)
                                 dim += wp.uint32(1)
                                 y = sample_parallelogram(scene.light_center[l], scene.light_half_u[l], scene.light_half_v[l], u[0], u[1])
                                 to_y = y - hit.p
@@ -235,6 +263,8 @@ def make_render_kernel(features: Features):
                                     continue
                                 sd = seg / seg_len
                                 blocked = bool(False)
+                                if wp.static(COUNT_RAYS):
+                                    rays += wp.int64(1)
                                 if wp.static(HAS_QUADS):
                                     blocked = occluded_quads(scene, so, sd, seg_len, hit.quad, scene.light_quad[l])
                                 if wp.static(HAS_MESH):
@@ -249,7 +279,7 @@ def make_render_kernel(features: Features):
                         L += wp.cw_mul(wp.cw_mul(beta, albedo), Ld) * (1.0 / wp.pi)
 
                     # ---------------- diffuse: cosine-weighted bounce ----------------
-                    u = rand4(key, dim)
+                    u = wp.static(draw4)(key, dim)
                     dim += wp.uint32(1)
                     wi = sample_cosine_around(ns, u[0], u[1])
                     count_emission = False
@@ -262,7 +292,7 @@ def make_render_kernel(features: Features):
                 # ---------------- Russian roulette ----------------
                 if wp.static(RR == RR_SEED):
                     if depth >= 2:
-                        u = rand4(key, dim)
+                        u = wp.static(draw4)(key, dim)
                         dim += wp.uint32(1)
                         if u[0] < SEED_RR_LAMBDA:
                             break
@@ -270,7 +300,7 @@ def make_render_kernel(features: Features):
                 if wp.static(RR == RR_THROUGHPUT):
                     if depth >= params.rr_depth:
                         q_rr = wp.min(wp.max(beta[0], wp.max(beta[1], beta[2])), 0.95)
-                        u = rand4(key, dim)
+                        u = wp.static(draw4)(key, dim)
                         dim += wp.uint32(1)
                         if u[0] >= q_rr:
                             break
@@ -287,12 +317,16 @@ def make_render_kernel(features: Features):
                 origin_normal = hit.ng
 
         # ---------------- film ----------------
+        # float64 sums: finite float32 samples can never overflow them, nor lose small ones to rounding
         if wp.isfinite(L):
-            accum[pixel] = accum[pixel] + L
-            accum_sq[pixel] = accum_sq[pixel] + wp.cw_mul(L, L)
+            L64 = wp.vec3d(L)
+            accum[pixel] = accum[pixel] + L64
+            accum_sq[pixel] = accum_sq[pixel] + wp.cw_mul(L64, L64)
         else:
             # one counter per worker: Warp's CPU atomics are plain adds, so concurrent workers must not share one
             wp.atomic_add(discarded, params.row_offset, 1)
+        if wp.static(COUNT_RAYS):
+            wp.atomic_add(ray_count, params.row_offset, rays)
 
     return render_pass
 

@@ -83,6 +83,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", metavar="DEV", help="cpu, cuda or cuda:N (default: cuda if available, else cpu)")
     p.add_argument("--light-samples", type=int, metavar="K", help="next-event samples per light (> 0)")
     p.add_argument("--rr", choices=("seed", "throughput"), help="Russian roulette: throughput (Mitsuba's rule) or seed")
+    p.add_argument("--sampler", choices=("independent", "sobol"),
+                   help="random numbers: independent (default) or sobol (Owen-scrambled, stratified across passes)")
     p.add_argument("--threads", type=int, metavar="N", help="CPU threads (> 0)")
     p.add_argument("--view", choices=("radiance", "direction", "normal"), default="radiance", help="what to render (default: radiance)")
     p.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE", help="set scene parameter $NAME (repeatable)")
@@ -142,6 +144,7 @@ def _render_kwargs(args: argparse.Namespace) -> dict:
         "device": args.device,
         "light_samples": args.light_samples,
         "rr": args.rr,
+        "sampler": args.sampler,
         "threads": args.threads,
     }
     kwargs = {k: v for k, v in given.items() if v is not None}

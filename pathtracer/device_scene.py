@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from kernels.integrator import RR_RULES, VIEWS, Features
+from kernels.integrator import RR_RULES, SAMPLERS, VIEWS, Features
 from kernels.types import CameraData, SceneData
 from pathtracer.scene import MIRROR, Scene, TriangleMesh
 
@@ -175,7 +175,8 @@ class DeviceScene:
         self.camera = camera_data(scene)
 
     @staticmethod
-    def features(scene: Scene, view: str = "radiance", rr: str = "throughput") -> Features:
+    def features(scene: Scene, view: str = "radiance", rr: str = "throughput", sampler: str = "independent",
+                 count_rays: bool = False) -> Features:
         """The compile-time features ``scene`` needs: nothing it does not use."""
         used = {s.material for s in scene.spheres} | {m.material for m in scene.meshes if len(m.faces)}
         quads, tri = split_scene(scene)
@@ -188,6 +189,8 @@ class DeviceScene:
             quads=len(quads) > 0,
             view=VIEWS[view],
             rr=RR_RULES[rr],
+            sampler=SAMPLERS[sampler],
+            count_rays=count_rays,
         )
 
 

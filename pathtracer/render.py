@@ -19,7 +19,7 @@ from typing import Callable
 import numpy as np
 import warp as wp
 
-from kernels.integrator import RR_RULES, VIEWS, render_kernel
+from kernels.integrator import RR_RULES, SAMPLERS, VIEWS, render_kernel
 from kernels.types import PassParams
 from pathtracer.device_scene import DeviceScene
 from pathtracer.diagnostics import roulette_variance_warning
@@ -29,6 +29,7 @@ from pathtracer.warp_setup import init_warp
 
 DEFAULT_LIGHT_SAMPLES = 8
 DEFAULT_RR = "throughput"
+DEFAULT_SAMPLER = "independent"
 UINT32_LIMIT = 2**32
 
 
@@ -41,10 +42,11 @@ class PassSum:
     passes: int
     discarded: int = 0  # non-finite samples dropped (never reach the image)
     seconds: float = 0.0  # time spent rendering (excluding compilation)
+    rays: int = 0  # rays traced, counted only by a Renderer made with count_rays=True
 
     def __add__(self, other: "PassSum") -> "PassSum":
         return PassSum(self.sum + other.sum, self.sum_sq + other.sum_sq, self.passes + other.passes,
-                       self.discarded + other.discarded, self.seconds + other.seconds)
+                       self.discarded + other.discarded, self.seconds + other.seconds, self.rays + other.rays)
 
     @property
     def mean(self) -> np.ndarray:
@@ -95,8 +97,11 @@ def _check_int(name: str, value, low: int, high: int | None = None) -> int:
 class Renderer:
     """A scene uploaded to a device with one compiled integrator variant; renders passes on demand.
 
-    max_depth, light_samples, rr: None means the scene file's value (max_depth) or the default
-    (8 light samples per light, Mitsuba's throughput roulette from the scene's rr_depth).
+    max_depth, light_samples, rr, sampler: None means the scene file's value (max_depth) or the default
+    (8 light samples per light, Mitsuba's throughput roulette from the scene's rr_depth, independent sampling).
+    sampler "sobol" draws Owen-scrambled Sobol' points indexed by pass: stratified across passes (best with a
+    power-of-two pass count), so ``PassSum.variance_of_mean`` then overestimates the error.
+    count_rays compiles an instrumented variant that counts every ray traced (for benchmarks).
     """
 
     scene: Scene
@@ -106,6 +111,8 @@ class Renderer:
     rr: str | None = None
     view: str = "radiance"
     threads: int | None = None
+    sampler: str | None = None
+    count_rays: bool = False
     compile_seconds: float = field(init=False, default=0.0)
 
     def __post_init__(self):
@@ -116,6 +123,10 @@ class Renderer:
         if rr not in RR_RULES:
             raise RenderError(f"unknown roulette rule {rr!r} (supported: {', '.join(RR_RULES)})")
         self.rr = rr
+        sampler = DEFAULT_SAMPLER if self.sampler is None else self.sampler
+        if sampler not in SAMPLERS:
+            raise RenderError(f"unknown sampler {sampler!r} (supported: {', '.join(SAMPLERS)})")
+        self.sampler = sampler
         depth = self.scene.integrator.max_depth if self.max_depth is None else self.max_depth
         self.max_depth = _check_int("max_depth", depth, -1)
         if self.max_depth == 0:
@@ -129,7 +140,7 @@ class Renderer:
             self.threads = 1  # one launch already fills a GPU
         self.threads = min(self.threads, self.scene.height)
 
-        self.features = DeviceScene.features(self.scene, self.view, self.rr)
+        self.features = DeviceScene.features(self.scene, self.view, self.rr, self.sampler, self.count_rays)
         self.kernel = render_kernel(self.features)
         t0 = time.perf_counter()
         wp.load_module(self.kernel.module, device=self.device)
@@ -158,9 +169,10 @@ class Renderer:
         s = self.scene
         npix = s.width * s.height
         with wp.ScopedDevice(self.device):
-            accum = wp.zeros(npix, dtype=wp.vec3)
-            accum_sq = wp.zeros(npix, dtype=wp.vec3)
+            accum = wp.zeros(npix, dtype=wp.vec3d)
+            accum_sq = wp.zeros(npix, dtype=wp.vec3d)
             discarded = wp.zeros(self.threads, dtype=wp.int32)  # one counter per worker thread
+            rays = wp.zeros(self.threads, dtype=wp.int64)
         rows_of = [len(range(w, s.height, self.threads)) for w in range(self.threads)]
         it = s.integrator
 
@@ -176,7 +188,7 @@ class Renderer:
             p.hide_emitters = int(it.hide_emitters)
             wp.launch(self.kernel, dim=rows_of[worker] * s.width,
                       inputs=[self.dscene.data, self.dscene.camera, p],
-                      outputs=[accum, accum_sq, discarded], device=self.device)
+                      outputs=[accum, accum_sq, discarded, rays], device=self.device)
 
         bar = None
         if progress:
@@ -198,7 +210,7 @@ class Renderer:
                     bar.update(1)
                 if callback is not None:
                     wp.synchronize_device(self.device)
-                    if callback(pass_index, self._sums(accum, accum_sq, discarded, done, t0)) is False:
+                    if callback(pass_index, self._sums(accum, accum_sq, discarded, rays, done, t0)) is False:
                         break
             wp.synchronize_device(self.device)
         finally:
@@ -206,14 +218,13 @@ class Renderer:
                 pool.shutdown(wait=True, cancel_futures=True)
             if bar is not None:
                 bar.close()
-        return self._sums(accum, accum_sq, discarded, done, t0)
+        return self._sums(accum, accum_sq, discarded, rays, done, t0)
 
-    def _sums(self, accum, accum_sq, discarded, done: int, t0: float) -> PassSum:
+    def _sums(self, accum, accum_sq, discarded, rays, done: int, t0: float) -> PassSum:
         s = self.scene
         shape = (s.height, s.width, 3)
-        return PassSum(accum.numpy().reshape(shape).astype(np.float64),
-                       accum_sq.numpy().reshape(shape).astype(np.float64),
-                       done, int(discarded.numpy().sum()), time.perf_counter() - t0)
+        return PassSum(accum.numpy().reshape(shape).copy(), accum_sq.numpy().reshape(shape).copy(),
+                       done, int(discarded.numpy().sum()), time.perf_counter() - t0, int(rays.numpy().sum()))
 
 
 _lock = threading.Lock()
@@ -230,6 +241,7 @@ def render(
     rr: str | None = None,
     threads: int | None = None,
     view: str = "radiance",
+    sampler: str | None = None,
     progress: bool = True,
     callback: Callable[[int, PassSum], object] | None = None,
     stats: dict | None = None,
@@ -241,6 +253,7 @@ def render(
     light_samples: next-event samples per light (default 8). rr: "throughput" (Mitsuba's rule from the scene's
     rr_depth, default) or "seed" (stop with probability 0.2 after the first bounce). threads: CPU worker
     threads (default: all cores); the image does not depend on it. view: "radiance", "direction" or "normal".
+    sampler: "independent" (default) or "sobol" (Owen-scrambled Sobol' points, stratified across passes).
     callback(pass_index, PassSum) runs after each pass. stats, if given, receives seconds, compile_seconds,
     samples, discarded, spp, threads, device, roulette_warning (None, or why the seed roulette rule has an
     infinite variance on this scene).
@@ -249,7 +262,7 @@ def render(
     spp = _check_int("spp", spp, 1)
     seed = scene.sampler_seed if seed is None else seed
     r = Renderer(scene, device=device, max_depth=max_depth, light_samples=light_samples, rr=rr,
-                 view=view, threads=threads)
+                 view=view, threads=threads, sampler=sampler)
     roulette_warning = roulette_variance_warning(scene, r.rr, r.max_depth)
     if roulette_warning:  # detected and reported before any time is spent, never silently averaged
         warnings.warn(f"{scene.source}: {roulette_warning}", RuntimeWarning, stacklevel=2)

@@ -628,13 +628,6 @@ def _coplanar_outcomes(device, geometry):
 COPLANAR_GEOMETRY = ["quads", "mesh ceiling"]
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "Coplanar surfaces z-fight: the nearest-hit code in kernels/integrator.py keeps a hit only if its distance is "
-    "below the best so far (kernels/quad.py ray_quad: t < tmax; Warp's mesh_query_ray: t < max_t), and the light's "
-    "and the ceiling's distances, computed from different data (each quad's own centre and dual basis; Warp's Woop "
-    "test for triangles), differ only by rounding, so whichever rounds lower wins, ray by ray: the seed's light "
-    "moved to y = 2 shows as speckle (64 x 48, 4 spp: most of its 8 pixels mix Le and ceiling samples). Model order "
-    "decides only exact ties. Fix: the rule of the next test."))
 @pytest.mark.parametrize("geometry", COPLANAR_GEOMETRY)
 def test_light_coplanar_with_ceiling_is_all_or_nothing(device, geometry):
     """Light and ceiling in one plane: over the light's pixels the same surface wins for every sample (all Le or all
@@ -643,14 +636,9 @@ def test_light_coplanar_with_ceiling_is_all_or_nothing(device, geometry):
     assert all(won != "a mix" for _, won in outcomes), outcomes
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "No deliberate rule decides between coplanar surfaces (see the previous test). Decided rule: an emitter wins "
-    "over a coplanar non-emitting surface (the seed's intent: its light is flush with the ceiling). Fix in "
-    "kernels/integrator.py: after the nearest hit at t, if it does not emit, test the light quads with the limit "
-    "t (1 + 16 eps) + 16 eps max|o| and take a light hit found there (a light is always a quad, so the BVH needs "
-    "no change)."))
 @pytest.mark.parametrize("geometry", COPLANAR_GEOMETRY)
 def test_light_coplanar_with_ceiling_wins(device, geometry):
+    """The deliberate rule (kernels/integrator.py, COPLANAR_TOL): an emitter wins over a coplanar surface."""
     outcomes = _coplanar_outcomes(device, geometry)
     assert all(won == "light" for _, won in outcomes), outcomes
 
@@ -779,15 +767,8 @@ def test_non_finite_samples_in_the_cornell_box(device, radiance):
     assert discarded > 0
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "Inf reaches the image with nothing discarded: the film accumulators (kernels/integrator.py, end of "
-    "render_pass: accum, accum_sq are float32 vec3) overflow when finite samples add up past 3.4e38 (accum_sq "
-    "already past |L| = 1.8e19), and the isfinite guard checks only the sample. The loader accepts such a scene "
-    "(radiance 3e38 is finite): 4 to 12 Inf pixels at 32 x 24, 4 spp. Fix: accumulate in float64 (wp.vec3d; "
-    "render.py's PassSum already converts to float64), and test isfinite on the new sums before storing them, "
-    "counting the sample as discarded otherwise (the sums test alone passes this test but discards 2/3 of the "
-    "samples, since float32 accum_sq overflows from |L| = 1.8e19)."))
 def test_huge_finite_radiance_never_reaches_the_image_as_inf(device):
+    """Regression: float32 film sums once overflowed to Inf from finite samples; they are float64 now."""
     s = cornell()
     s.lights[0] = dataclasses.replace(s.lights[0], radiance=(3e38, 3e38, 3e38))
     stats = {}
