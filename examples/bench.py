@@ -75,7 +75,7 @@ def configs(quick: bool, have_mitsuba: bool, samplers: list[str]) -> list[Config
     out.append(Config("K=8 rr=seed", rr="seed"))
     for s in samplers:
         if s != "independent":
-            out.append(Config(f"K=8 {s}", sampler=s))
+            out += [Config(f"K={k} {s}", light_samples=k, sampler=s) for k in ([1, 8] if quick else [1, 2, 4, 8])]
     if cores > 1:
         out.append(Config("K=8 1 thread", threads=1))
     if have_mitsuba:
@@ -100,6 +100,12 @@ def ours_ladder(scene_name: str, cfg: Config, ladder: list[int], ref: np.ndarray
         paths = spp * w * h
         rows.append(Row(scene_name, cfg.label, spp, sums.seconds, rel_mse(img, ref), paths / sums.seconds,
                         extra={"compile_seconds": r.compile_seconds, "threads": r.threads}))
+    # rays per path from an instrumented variant (same seed, so the same paths), then rays/s of the timed runs
+    counted = pathtracer.Renderer(scene, count_rays=True, **kwargs).render_passes(seed=1, first_pass=0, count=4)
+    rays_per_path = counted.rays / (4 * w * h)
+    for row in rows:
+        row.rays_per_s = row.samples_per_s * rays_per_path
+        row.extra["rays_per_path"] = rays_per_path
     return rows
 
 
@@ -189,11 +195,12 @@ def markdown(rows: list[Row], refs: dict, args, wall: float) -> str:
              "efficiency = 1 / (relMSE x seconds); time to 1e-3 = seconds x relMSE / 1e-3 at the last rung.", ""]
     for s in dict.fromkeys(r.scene for r in rows):
         lines += [f"## {s}", "", f"Reference: {refs[s]}.", "",
-                  "| configuration | spp | seconds | M samples/s | relMSE | efficiency | time to 1e-3 (s) |",
-                  "|---|---|---|---|---|---|---|"]
+                  "| configuration | spp | seconds | M samples/s | M rays/s | relMSE | efficiency | time to 1e-3 (s) |",
+                  "|---|---|---|---|---|---|---|---|"]
         for r in rows:
             if r.scene == s:
-                lines.append(f"| {r.config} | {r.spp} | {r.seconds:.3f} | {r.samples_per_s / 1e6:.2f} | "
+                rays = "" if np.isnan(r.rays_per_s) else f"{r.rays_per_s / 1e6:.2f}"
+                lines.append(f"| {r.config} | {r.spp} | {r.seconds:.3f} | {r.samples_per_s / 1e6:.2f} | {rays} | "
                              f"{r.relmse:.3e} | {r.efficiency:.3g} | {r.time_to_target:.2f} |")
         lines.append("")
         last = {r.config: r for r in rows if r.scene == s}
@@ -218,7 +225,7 @@ def main(argv=None) -> int:
     ap.add_argument("--ladder", type=int, nargs="*", default=[4, 16, 64, 256])
     ap.add_argument("--ref-spp", type=int, default=16384)
     ap.add_argument("--ref-dir", default=str(ROOT / "out" / "bench_refs"))
-    ap.add_argument("--samplers", nargs="*", default=["independent"])
+    ap.add_argument("--samplers", nargs="*", default=["independent", "sobol"])
     ap.add_argument("--quick", action="store_true", help="fewer configurations")
     ap.add_argument("--no-mitsuba", action="store_true")
     ap.add_argument("--out", default=str(ROOT / "docs"))

@@ -27,7 +27,7 @@ from pathtracer.errors import RenderError
 from pathtracer.scene import Scene
 from pathtracer.warp_setup import init_warp
 
-DEFAULT_LIGHT_SAMPLES = 8
+DEFAULT_LIGHT_SAMPLES = 1
 DEFAULT_RR = "throughput"
 DEFAULT_SAMPLER = "independent"
 UINT32_LIMIT = 2**32
@@ -98,7 +98,8 @@ class Renderer:
     """A scene uploaded to a device with one compiled integrator variant; renders passes on demand.
 
     max_depth, light_samples, rr, sampler: None means the scene file's value (max_depth) or the default
-    (8 light samples per light, Mitsuba's throughput roulette from the scene's rr_depth, independent sampling).
+    (1 light sample per light, Mitsuba's throughput roulette from the scene's rr_depth, independent sampling:
+    the most efficient choices measured in docs/performance.md, except Sobol, see below).
     sampler "sobol" draws Owen-scrambled Sobol' points indexed by pass: stratified across passes (best with a
     power-of-two pass count), so ``PassSum.variance_of_mean`` then overestimates the error.
     count_rays compiles an instrumented variant that counts every ray traced (for benchmarks).
@@ -176,7 +177,7 @@ class Renderer:
         rows_of = [len(range(w, s.height, self.threads)) for w in range(self.threads)]
         it = s.integrator
 
-        def launch(worker: int, pass_index: int):
+        def params(worker: int, pass_index: int) -> PassParams:
             p = PassParams()
             p.seed = wp.uint32(seed)
             p.pass_index = wp.uint32(pass_index)
@@ -186,9 +187,17 @@ class Renderer:
             p.rr_depth = it.rr_depth
             p.light_samples = self.light_samples
             p.hide_emitters = int(it.hide_emitters)
-            wp.launch(self.kernel, dim=rows_of[worker] * s.width,
-                      inputs=[self.dscene.data, self.dscene.camera, p],
-                      outputs=[accum, accum_sq, discarded, rays], device=self.device)
+            return p
+
+        # one recorded launch per worker: later passes only swap the pass parameters (cheaper than wp.launch)
+        cmds = [wp.launch(self.kernel, dim=rows_of[w] * s.width,
+                          inputs=[self.dscene.data, self.dscene.camera, params(w, first_pass)],
+                          outputs=[accum, accum_sq, discarded, rays], device=self.device, record_cmd=True)
+                for w in range(self.threads)]
+
+        def launch(worker: int, pass_index: int):
+            cmds[worker].set_param_by_name("params", params(worker, pass_index))
+            cmds[worker].launch()
 
         bar = None
         if progress:
@@ -197,28 +206,80 @@ class Renderer:
             bar = tqdm(total=count, unit="pass", desc="rendering", leave=False, dynamic_ncols=True)
         done = 0
         t0 = time.perf_counter()
-        pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
+        pool = self._worker_pool()
+        passes = range(first_pass, first_pass + count)
         try:
-            for pass_index in range(first_pass, first_pass + count):
-                if pool is None:
-                    launch(0, pass_index)
-                else:
-                    for f in [pool.submit(launch, w, pass_index) for w in range(self.threads)]:
-                        f.result()
-                done += 1
-                if bar is not None:
-                    bar.update(1)
-                if callback is not None:
-                    wp.synchronize_device(self.device)
-                    if callback(pass_index, self._sums(accum, accum_sq, discarded, rays, done, t0)) is False:
-                        break
+            if pool is not None and callback is None:
+                # Free-running workers: each owns its rows and runs every pass in order, with no barrier
+                # between passes (a barrier costs the slower worker's lead every pass).
+                done = self._run_free(pool, launch, passes, bar)
+            else:
+                for pass_index in passes:
+                    if pool is None:
+                        launch(0, pass_index)
+                    else:
+                        for f in [pool.submit(launch, w, pass_index) for w in range(self.threads)]:
+                            f.result()
+                    done += 1
+                    if bar is not None:
+                        bar.update(1)
+                    if callback is not None:
+                        wp.synchronize_device(self.device)
+                        if callback(pass_index, self._sums(accum, accum_sq, discarded, rays, done, t0)) is False:
+                            break
             wp.synchronize_device(self.device)
         finally:
-            if pool is not None:
-                pool.shutdown(wait=True, cancel_futures=True)
             if bar is not None:
                 bar.close()
         return self._sums(accum, accum_sq, discarded, rays, done, t0)
+
+    def _worker_pool(self) -> ThreadPoolExecutor | None:
+        """The renderer's worker threads, started once and reused by every call (None with one thread)."""
+        if self.threads == 1:
+            return None
+        if getattr(self, "_pool", None) is None:
+            self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="pathtracer")
+        return self._pool
+
+    def close(self) -> None:
+        """Stop the worker threads (also done when the renderer is garbage collected)."""
+        pool, self._pool = getattr(self, "_pool", None), None
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+    def __del__(self):
+        try:
+            self.close()
+        except Exception:
+            pass
+
+    def _run_free(self, pool: ThreadPoolExecutor, launch, passes: range, bar) -> int:
+        """Every worker renders all ``passes`` on its rows; returns the number of passes done (all of them)."""
+        lock = threading.Lock()
+        completed = [0] * self.threads
+        shown = [0]
+        stop = threading.Event()
+
+        def worker(w: int):
+            for pass_index in passes:
+                if stop.is_set():
+                    return
+                launch(w, pass_index)
+                with lock:
+                    completed[w] += 1
+                    low = min(completed)
+                    if bar is not None and low > shown[0]:
+                        bar.update(low - shown[0])
+                    shown[0] = low
+
+        futures = [pool.submit(worker, w) for w in range(self.threads)]
+        try:
+            for f in futures:
+                f.result()
+        except BaseException:
+            stop.set()  # interrupted: workers stop after their current launch
+            raise
+        return len(passes)
 
     def _sums(self, accum, accum_sq, discarded, rays, done: int, t0: float) -> PassSum:
         s = self.scene
@@ -250,9 +311,9 @@ def render(
 
     spp, max_depth, seed: None means the scene file's value (its sampler's sample_count, the integrator's
     max_depth, the sampler's seed). device: None picks CUDA when present, else "cpu".
-    light_samples: next-event samples per light (default 8). rr: "throughput" (Mitsuba's rule from the scene's
-    rr_depth, default) or "seed" (stop with probability 0.2 after the first bounce). threads: CPU worker
-    threads (default: all cores); the image does not depend on it. view: "radiance", "direction" or "normal".
+    light_samples: next-event samples per light (default 1; the seed used 8).
+    rr: "throughput" (Mitsuba's rule from the scene's rr_depth, default) or "seed" (stop with probability 0.2
+    after the first bounce). threads: CPU worker threads (default: all cores); the image does not depend on it. view: "radiance", "direction" or "normal".
     sampler: "independent" (default) or "sobol" (Owen-scrambled Sobol' points, stratified across passes).
     callback(pass_index, PassSum) runs after each pass. stats, if given, receives seconds, compile_seconds,
     samples, discarded, spp, threads, device, roulette_warning (None, or why the seed roulette rule has an
