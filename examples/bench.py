@@ -150,6 +150,36 @@ def reference(scene_name: str, w: int, h: int, ref_dir: Path, ref_spp: int, have
     return img, f"ours {ref_spp} spp"
 
 
+COMPILE_PROBE = """
+import sys, time
+t0 = time.perf_counter()
+import pathtracer
+scene = pathtracer.load_file(sys.argv[1], width=8, height=6)
+r = pathtracer.Renderer(scene)
+print(r.compile_seconds, time.perf_counter() - t0)
+"""
+
+
+def compile_times(scenes: list[str]) -> list[tuple[str, float, float, float]]:
+    """(scene, cold compile s, warm load s, warm process start-to-ready s), each in a fresh process with an
+    empty kernel cache for the cold run."""
+    import subprocess
+    import tempfile
+
+    out = []
+    with tempfile.TemporaryDirectory() as cache:
+        env = dict(os.environ, WARP_CACHE_PATH=cache, PYTHONPATH=str(ROOT))
+        for s in scenes:
+            path = str(ROOT / "scenes" / f"{s}.xml")
+            runs = []
+            for _ in range(2):  # cold, then warm
+                r = subprocess.run([sys.executable, "-c", COMPILE_PROBE, path], env=env, capture_output=True,
+                                   text=True, check=True)
+                runs.append([float(x) for x in r.stdout.split()[-2:]])
+            out.append((s, runs[0][0], runs[1][0], runs[1][1]))
+    return out
+
+
 def machine() -> str:
     cpu = platform.processor() or platform.machine()
     try:
@@ -187,12 +217,22 @@ def plot(rows: list[Row], path: Path) -> None:
     fig.savefig(path, dpi=110)
 
 
-def markdown(rows: list[Row], refs: dict, args, wall: float) -> str:
-    lines = ["# Performance: speed against error", "",
+def markdown(rows: list[Row], refs: dict, args, wall: float, compiles=None) -> str:
+    notes = ROOT / "docs" / "performance_notes.md"
+    lines = ["# Performance: speed against error", ""]
+    if notes.exists():
+        lines += [notes.read_text().strip(), "", "# The latest report", ""]
+    lines += [
              f"Machine: {machine()}. Command: `python examples/bench.py {' '.join(sys.argv[1:])}` "
              f"({wall / 60:.1f} min). Image {args.width}x{args.height}, the scene files' max_depth and rr_depth.",
              "Seconds exclude compilation and JIT warm-up. relMSE = mean((I - R)^2 / (R^2 + 0.01)); "
              "efficiency = 1 / (relMSE x seconds); time to 1e-3 = seconds x relMSE / 1e-3 at the last rung.", ""]
+    if compiles:
+        lines += ["## Compile and start-up", "",
+                  "| scene | cold compile (s) | cached load (s) | warm process: import + load + upload (s) |",
+                  "|---|---|---|---|"]
+        lines += [f"| {s} | {c:.2f} | {w:.4f} | {p:.2f} |" for s, c, w, p in compiles]
+        lines.append("")
     for s in dict.fromkeys(r.scene for r in rows):
         lines += [f"## {s}", "", f"Reference: {refs[s]}.", "",
                   "| configuration | spp | seconds | M samples/s | M rays/s | relMSE | efficiency | time to 1e-3 (s) |",
@@ -253,7 +293,8 @@ def main(argv=None) -> int:
                   f"to 1e-3: {last.time_to_target:7.2f} s", flush=True)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "performance.md").write_text(markdown(rows, refs, a, time.perf_counter() - t_start))
+    compiles = compile_times(a.scenes)
+    (out / "performance.md").write_text(markdown(rows, refs, a, time.perf_counter() - t_start, compiles))
     with open(out / "performance.json", "w") as f:
         json.dump([r.__dict__ | {"efficiency": r.efficiency} for r in rows], f, indent=0)
     try:

@@ -1,0 +1,74 @@
+"""Make the small Mitsuba 3 references the test suite compares against (tests/data/refs/), so that the tests need
+no Mitsuba: every scene in scenes/ at its own max_depth and as direct lighting (max_depth 2).
+
+    DRJIT_LIBLLVM_PATH=/usr/lib/x86_64-linux-gnu/libLLVM-19.so python examples/make_mitsuba_refs.py
+
+Each reference is the mean of B independent Mitsuba renders (different seeds); beside it goes the per-pixel
+variance of that mean (``*_var.exr``), so a test can tell a real difference from the reference's own noise.
+Sizes are small (64x48, float32 EXR: about 40 KB each).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+WIDTH, HEIGHT = 64, 48
+SCENES = ["cornell_box", "cornell_box_mirror", "teapot_in_box", "open_sky"]
+
+
+def cases() -> list[tuple[str, int | None]]:
+    """(scene, max_depth override): the file's own depth (None) and direct lighting (2)."""
+    return [(s, d) for s in SCENES for d in (None, 2)]
+
+
+def ref_name(scene: str, max_depth: int | None) -> str:
+    return scene if max_depth is None else f"{scene}_d{max_depth}"
+
+
+def main(argv=None) -> int:
+    import mitsuba as mi
+
+    import pathtracer
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--spp", type=int, default=65536, help="samples per pixel in all (split into batches)")
+    ap.add_argument("--batches", type=int, default=16)
+    ap.add_argument("--out", default=str(ROOT / "tests" / "data" / "refs"))
+    a = ap.parse_args(argv)
+    mi.set_variant("llvm_ad_rgb" if os.environ.get("DRJIT_LIBLLVM_PATH") else "scalar_rgb")
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    meta = {"width": WIDTH, "height": HEIGHT, "spp": a.spp, "batches": a.batches, "mitsuba": mi.__version__,
+            "variant": mi.variant(), "refs": {}}
+    for scene_name, depth in cases():
+        params = {"width": str(WIDTH), "height": str(HEIGHT)}
+        if depth is not None:
+            params["max_depth"] = str(depth)
+        scene = mi.load_file(str(ROOT / "scenes" / f"{scene_name}.xml"), **params)
+        t0 = time.perf_counter()
+        per = a.spp // a.batches
+        imgs = np.stack([np.array(mi.render(scene, spp=per, seed=b), dtype=np.float64)[..., :3]
+                         for b in range(a.batches)])
+        mean = imgs.mean(axis=0).astype(np.float32)
+        var = (imgs.var(axis=0, ddof=1) / a.batches).astype(np.float32)
+        name = ref_name(scene_name, depth)
+        pathtracer.write_image(out / f"{name}.exr", mean)
+        pathtracer.write_image(out / f"{name}_var.exr", var)
+        meta["refs"][name] = {"scene": f"scenes/{scene_name}.xml", "max_depth": depth}
+        print(f"{name}: mean {mean.mean():.5f}, {time.perf_counter() - t0:.1f} s", flush=True)
+    (out / "refs.json").write_text(json.dumps(meta, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
