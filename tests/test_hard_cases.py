@@ -356,7 +356,14 @@ def _watertight_rays(verts, faces, rng, dist, cone=0.25):
     edges, counts = np.unique(np.sort(m.edges, axis=1), axis=0, return_counts=True)
     boundary = np.zeros(len(verts), bool)
     boundary[edges[counts != 2].ravel()] = True
-    vf = m.vertex_faces  # padded with -1
+    # incident faces per vertex, padded with -1 (numpy only: trimesh's vertex_faces needs scipy)
+    flat = np.asarray(m.faces).ravel()
+    order = np.argsort(flat, kind="stable")
+    vid, fid = flat[order], order // 3
+    counts = np.bincount(vid, minlength=len(verts))
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    vf = -np.ones((len(verts), max(int(counts.max()), 1)), dtype=np.int64)
+    vf[vid, np.arange(len(vid)) - starts[vid]] = fid
     has = vf >= 0
     vn = (fn[np.where(has, vf, 0)] * has[..., None]).sum(axis=1)
     vn_len = np.linalg.norm(vn, axis=1)
