@@ -433,3 +433,50 @@ def test_end_to_end_cuda_request(tmp_path, tiny_scene):
         line = assert_one_line_error(r.returncode, r.stderr)
         assert "cuda" in line.lower()
         assert not out.exists()
+
+
+_GOOD_SHAPE = "<shape type='sphere'><float name='radius' value='1'/></shape>"
+_SENSOR = ("<sensor type='perspective'><float name='fov' value='45'/><film type='hdrfilm'>"
+           "<integer name='width' value='4'/><integer name='height' value='3'/></film></sensor>")
+BAD_SCENES = {
+    "malformed XML": (f"<scene version='3.0.0'>{_SENSOR}<shape type='sphere'>", r"line \d+"),
+    "unknown plugin": (f"<scene version='3.0.0'>{_SENSOR}<shape type='teacup'/></scene>", r"teacup"),
+    "unknown property": (f"<scene version='3.0.0'>{_SENSOR}<shape type='sphere'><float name='radious' value='1'/>"
+                         "</shape></scene>", r"radious"),
+    "NaN": (f"<scene version='3.0.0'>{_SENSOR}<shape type='sphere'><float name='radius' value='nan'/></shape>"
+            "</scene>", r"radius"),
+    "Inf": (f"<scene version='3.0.0'>{_SENSOR}<shape type='sphere'><point name='center' value='0, inf, 0'/>"
+            "</shape></scene>", r"center"),
+    "negative radius": (f"<scene version='3.0.0'>{_SENSOR}<shape type='sphere'><float name='radius' value='-1'/>"
+                        "</shape></scene>", r"radius"),
+    "zero radius": (f"<scene version='3.0.0'>{_SENSOR}<shape type='sphere'><float name='radius' value='0'/>"
+                    "</shape></scene>", r"radius"),
+    "empty file": ("", r"empty"),
+    "binary file": (bytes(range(256)) * 4, r"bad\.xml"),
+    "missing mesh": (f"<scene version='3.0.0'>{_SENSOR}<shape type='obj'><string name='filename' value='no.obj'/>"
+                     "</shape></scene>", r"no\.obj"),
+    "mesh with no faces": (f"<scene version='3.0.0'>{_SENSOR}<shape type='obj'><string name='filename' "
+                           "value='empty.obj'/></shape></scene>", r"empty\.obj"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_SCENES))
+def test_bad_scene_files_fail_in_one_line_and_write_nothing(tmp_path, case, capsys):
+    """Issue 3's bad-input list through the CLI with the real loader: status 2, one line naming the file and the
+    problem, no traceback, no output file."""
+    text, pattern = BAD_SCENES[case]
+    bad = tmp_path / "bad.xml"
+    if isinstance(text, bytes):
+        bad.write_bytes(text)
+    else:
+        bad.write_text(text)
+    (tmp_path / "empty.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\n")
+    out = tmp_path / "out.exr"
+    rc = cli.main([str(bad), "-o", str(out), "--device", "cpu", "--no-progress"])
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert "bad.xml" in lines[0], lines[0]
+    assert re.search(pattern, lines[0], re.I), lines[0]
+    assert not out.exists() and not [p for p in os.listdir(tmp_path) if p.startswith(".out")]
