@@ -8,6 +8,10 @@ accumulators.
 Estimator (equal in expectation to Mitsuba's ``path`` integrator, which adds MIS):
 emission is counted on camera rays and after mirror bounces; at diffuse hits next-event estimation takes K uniform
 samples on every rectangle light, and emission found by the following diffuse bounce is not counted again.
+Light samples are uniform in area (weight Le cos_x cos_y / d^2 * area / K), or, with ``light_sampling``
+"solid_angle", uniform in the solid angle a rectangular light subtends (kernels/sphrect.py; weight
+Le cos_x Omega / K), which removes the cos_y / d^2 variance near a light; non-rectangular parallelograms and points
+where the solid angle is tiny fall back to area sampling.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ from kernels.quad import occluded_quads, quad_hit, ray_quad
 from kernels.rng import rand4
 from kernels.sobol import sobol4
 from kernels.sampling import reflect, sample_cosine_around, sample_parallelogram
+from kernels.sphrect import sample_spherical_rectangle
 from kernels.sphere import SELF_FAR, SELF_NONE, SELF_SKIP, ray_sphere
 from kernels.types import CameraData, Hit, PassParams, SceneData
 
@@ -39,6 +44,10 @@ RR_RULES = {"none": RR_NONE, "seed": RR_SEED, "throughput": RR_THROUGHPUT}
 SAMPLER_INDEPENDENT = 0  # pcg4d hash of (pixel, pass, seed, dim): independent uniforms
 SAMPLER_SOBOL = 1  # Owen-scrambled, shuffled Sobol' points indexed by pass: stratified across passes
 SAMPLERS = {"independent": SAMPLER_INDEPENDENT, "sobol": SAMPLER_SOBOL}
+
+LIGHT_AREA = 0  # next-event samples uniform in the light's area
+LIGHT_SOLID_ANGLE = 1  # uniform in the solid angle of rectangular lights (Urena et al. 2013), area otherwise
+LIGHT_SAMPLINGS = {"area": LIGHT_AREA, "solid_angle": LIGHT_SOLID_ANGLE}
 
 # A light wins a tie with a surface coplanar with it (the seed's light sits in its ceiling's plane): its distance
 # may exceed the other's by this relative margin, far above the quads' float64 rounding and far below any real gap.
@@ -61,6 +70,7 @@ class Features:
     view: int = VIEW_RADIANCE
     rr: int = RR_THROUGHPUT
     sampler: int = SAMPLER_INDEPENDENT
+    light_sampling: int = LIGHT_AREA
     count_rays: bool = False  # instrumented variant for benchmarks: counts closest-hit and shadow rays
 
 
@@ -102,6 +112,7 @@ def make_render_kernel(features: Features):
     VIEW = features.view
     RR = features.rr
     COUNT_RAYS = features.count_rays
+    SOLID_ANGLE = features.light_sampling == LIGHT_SOLID_ANGLE
     draw4 = sobol4 if features.sampler == SAMPLER_SOBOL else rand4  # picked at compile time
 
     @wp.kernel(enable_backward=False, module="unique")
@@ -244,7 +255,18 @@ def make_render_kernel(features: Features):
                             for k in range(params.light_samples):
                                 u = wp.static(draw4)(key, dim)
                                 dim += wp.uint32(1)
-                                y = sample_parallelogram(scene.light_center[l], scene.light_half_u[l], scene.light_half_v[l], u[0], u[1])
+                                y = wp.vec3(0.0)
+                                omega = float(0.0)  # > 0: y is uniform in the light's solid angle
+                                if wp.static(SOLID_ANGLE):
+                                    if scene.light_rect[l] != 0:
+                                        hu = scene.light_half_u[l]
+                                        hv = scene.light_half_v[l]
+                                        if wp.dot(hit.p - scene.light_center[l], ln) > 0.0:  # in front of the light
+                                            sr = sample_spherical_rectangle(hit.p, scene.light_center[l] - hu - hv, 2.0 * hu, 2.0 * hv, u[0], u[1])
+                                            y = sr.p
+                                            omega = sr.solid_angle
+                                if omega <= 0.0:
+                                    y = sample_parallelogram(scene.light_center[l], scene.light_half_u[l], scene.light_half_v[l], u[0], u[1])
                                 to_y = y - hit.p
                                 dist2 = wp.dot(to_y, to_y)
                                 if dist2 <= 0.0:
@@ -274,8 +296,11 @@ def make_render_kernel(features: Features):
                                     if not blocked:
                                         blocked = occluded_spheres(scene, so, sd, seg_len, hit.sphere, hit.ng)
                                 if not blocked:
-                                    Ll += cos_x * cos_y / dist2
-                            Ld += scene.light_radiance[l] * (Ll * scene.light_area[l] / float(params.light_samples))
+                                    if omega > 0.0:
+                                        Ll += cos_x * omega
+                                    else:
+                                        Ll += cos_x * cos_y / dist2 * scene.light_area[l]
+                            Ld += scene.light_radiance[l] * (Ll / float(params.light_samples))
                         L += wp.cw_mul(wp.cw_mul(beta, albedo), Ld) * (1.0 / wp.pi)
 
                     # ---------------- diffuse: cosine-weighted bounce ----------------

@@ -52,6 +52,7 @@ class SceneData:
     light_area: wp.array(dtype=float)
     num_lights: int
     light_quad: wp.array(dtype=wp.int32)  # the quad that is light l, -1 if it is triangles
+    light_rect: wp.array(dtype=wp.int32)  # 1 if light l is a rectangle (solid-angle sampling applies), else 0
 
 
 @wp.struct

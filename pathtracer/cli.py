@@ -85,6 +85,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rr", choices=("seed", "throughput"), help="Russian roulette: throughput (Mitsuba's rule) or seed")
     p.add_argument("--sampler", choices=("independent", "sobol"),
                    help="random numbers: independent (default) or sobol (Owen-scrambled, stratified across passes)")
+    p.add_argument("--light-sampling", choices=("area", "solid_angle"),
+                   help="light samples: area (default, uniform on the light) or solid_angle (uniform in the solid "
+                   "angle of rectangular lights)")
     p.add_argument("--threads", type=int, metavar="N", help="CPU threads (> 0)")
     p.add_argument("--view", choices=("radiance", "direction", "normal"), default="radiance", help="what to render (default: radiance)")
     p.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE", help="set scene parameter $NAME (repeatable)")
@@ -145,6 +148,7 @@ def _render_kwargs(args: argparse.Namespace) -> dict:
         "light_samples": args.light_samples,
         "rr": args.rr,
         "sampler": args.sampler,
+        "light_sampling": args.light_sampling,
         "threads": args.threads,
     }
     kwargs = {k: v for k, v in given.items() if v is not None}

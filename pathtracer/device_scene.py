@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from kernels.integrator import RR_RULES, SAMPLERS, VIEWS, Features
+from kernels.integrator import LIGHT_SAMPLINGS, RR_RULES, SAMPLERS, VIEWS, Features
 from kernels.types import CameraData, SceneData
 from pathtracer.scene import MIRROR, Scene, TriangleMesh
 
@@ -34,6 +34,14 @@ def _face_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
 
 QUAD_SHAPES = ("rectangle", "cube")
 PARALLELOGRAM_TOL = 1e-7  # relative: far below float32 resolution
+RECTANGLE_TOL = 1e-6  # relative: |half_u . half_v| <= this |half_u| |half_v| makes a light a rectangle
+
+
+def is_rectangle(half_u, half_v) -> bool:
+    """Are the parallelogram's edges orthogonal (within ``RECTANGLE_TOL``) and non-degenerate?"""
+    hu, hv = np.asarray(half_u, dtype=np.float64), np.asarray(half_v, dtype=np.float64)
+    lu, lv = float(np.linalg.norm(hu)), float(np.linalg.norm(hv))
+    return lu > 0 and lv > 0 and abs(float(np.dot(hu, hv))) <= RECTANGLE_TOL * lu * lv
 
 
 @dataclass
@@ -171,12 +179,13 @@ class DeviceScene:
         d.light_area = _arr([l.area for l in lights], wp.float32, device)
         d.num_lights = len(lights)
         d.light_quad = _arr(light_quad, wp.int32, device)
+        d.light_rect = _arr([int(is_rectangle(l.half_u, l.half_v)) for l in lights], wp.int32, device)
         self.data = d
         self.camera = camera_data(scene)
 
     @staticmethod
     def features(scene: Scene, view: str = "radiance", rr: str = "throughput", sampler: str = "independent",
-                 count_rays: bool = False) -> Features:
+                 count_rays: bool = False, light_sampling: str = "area") -> Features:
         """The compile-time features ``scene`` needs: nothing it does not use."""
         used = {s.material for s in scene.spheres} | {m.material for m in scene.meshes if len(m.faces)}
         quads, tri = split_scene(scene)
@@ -190,6 +199,7 @@ class DeviceScene:
             view=VIEWS[view],
             rr=RR_RULES[rr],
             sampler=SAMPLERS[sampler],
+            light_sampling=LIGHT_SAMPLINGS[light_sampling],
             count_rays=count_rays,
         )
 
