@@ -22,6 +22,7 @@ import warp as wp
 
 from kernels.camera import camera_ray
 from kernels.mesh import mesh_hit, smooth_normal, sphere_hit
+from kernels.triangle import mesh_closest, mesh_occluded
 from kernels.offset import max_abs, offset_origin
 from kernels.quad import occluded_quads, quad_hit, ray_quad
 from kernels.rng import rand4
@@ -190,8 +191,8 @@ def make_render_kernel(features: Features):
                     mesh_limit = hit.t
                     if found and hit.light >= 0:
                         mesh_limit = hit.t * (1.0 - 1.0e-5)  # the light also wins a float32 tie with a triangle
-                    q = wp.mesh_query_ray(scene.mesh, o, d, mesh_limit)
-                    if q.result:
+                    q = mesh_closest(scene, o, d, mesh_limit)
+                    if q.face >= 0:
                         hit = mesh_hit(scene, o, d, q)
                         if wp.static(HAS_SMOOTH):
                             hit.ns = smooth_normal(scene, q.face, q.u, q.v, hit.ng)
@@ -291,7 +292,7 @@ def make_render_kernel(features: Features):
                                     blocked = occluded_quads(scene, so, sd, seg_len, hit.quad, scene.light_quad[l])
                                 if wp.static(HAS_MESH):
                                     if not blocked:
-                                        blocked = wp.mesh_query_ray_anyhit(scene.mesh, so, sd, seg_len)
+                                        blocked = mesh_occluded(scene, so, sd, seg_len)
                                 if wp.static(HAS_SPHERES):
                                     if not blocked:
                                         blocked = occluded_spheres(scene, so, sd, seg_len, hit.sphere, hit.ng)

@@ -1,16 +1,17 @@
-"""Triangle hits through the scene's one ``wp.Mesh`` BVH."""
+"""Hit records: triangles (found by ``kernels.triangle``) and spheres."""
 
 import warp as wp
 
 from kernels.offset import max_abs
+from kernels.triangle import TriHit
 from kernels.types import Hit, SceneData
 
 
 @wp.func
-def mesh_hit(scene: SceneData, o: wp.vec3, d: wp.vec3, q: wp.MeshQueryRay) -> Hit:
-    """Hit record of a ``mesh_query_ray`` result, flat-shaded (``ns = ng``).
+def mesh_hit(scene: SceneData, o: wp.vec3, d: wp.vec3, q: TriHit) -> Hit:
+    """Hit record of a ``mesh_closest`` result, flat-shaded (``ns = ng``, the winding normal).
 
-    The point is rebuilt from the barycentrics (Warp's u weights vertex 0, v vertex 1), so its error is a few
+    The point is rebuilt from the barycentrics (u weights vertex 0, v vertex 1), so its error is a few
     ulps of the triangle's own coordinates whatever the ray origin was.
     """
     i0 = scene.indices[3 * q.face + 0]
@@ -22,7 +23,7 @@ def mesh_hit(scene: SceneData, o: wp.vec3, d: wp.vec3, q: wp.MeshQueryRay) -> Hi
     h = Hit()
     h.t = q.t
     h.p = q.u * a + q.v * b + (1.0 - q.u - q.v) * c
-    h.ng = wp.normalize(q.normal)
+    h.ng = wp.normalize(wp.cross(b - a, c - a))
     h.ns = h.ng
     h.scale = wp.max(max_abs(a), wp.max(max_abs(b), max_abs(c)))
     h.material = scene.face_material[q.face]

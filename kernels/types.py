@@ -21,7 +21,7 @@ class CameraData:
 class SceneData:
     """Every primitive of a scene. Arrays of absent kinds are empty (their code is compiled out)."""
 
-    mesh: wp.uint64  # one wp.Mesh holding every triangle
+    bvh: wp.uint64  # one wp.Bvh over every triangle's padded box (kernels/triangle.py)
     points: wp.array(dtype=wp.vec3)
     indices: wp.array(dtype=wp.int32)  # 3 per face
     face_material: wp.array(dtype=wp.int32)

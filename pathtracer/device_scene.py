@@ -1,4 +1,4 @@
-"""Uploads a ``Scene`` to one Warp device: rectangles and cubes as analytic quads, the one ``wp.Mesh`` of every
+"""Uploads a ``Scene`` to one Warp device: rectangles and cubes as analytic quads, one ``wp.Bvh`` over every
 other triangle, and flat arrays for the rest."""
 
 from __future__ import annotations
@@ -30,6 +30,31 @@ def _face_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
     length = np.linalg.norm(n, axis=1, keepdims=True)
     return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+
+
+def triangle_box_pad(points: np.ndarray, camera_origin) -> float:
+    """How far every triangle's box is grown so that the BVH's float32 slab test never rejects a box its ray meets.
+
+    The slab test computes each t as (lower - o) / d: a relative error of a few float32 ulps of |t|, i.e. an
+    absolute error of a few ulps of the coordinates involved. For ray origins and vertices within
+    max |coordinate| <= R, R the largest coordinate of the meshes and the camera, |t| <= 2 sqrt(3) R, and
+    2^-18 R (32 ulps of R) leaves a factor of about 5 over the error bound. (A ray from a surface much farther out,
+    say a huge ground sphere, gets a proportionally thinner margin: R is not taken over those, which would make the
+    boxes overlap.) The cost is a few extra candidate triangles near each box, tested by the watertight test.
+    """
+    r = float(np.abs(points).max()) if len(points) else 0.0
+    r = max(r, float(np.abs(np.asarray(camera_origin, dtype=np.float64)).max()))
+    return 2.0**-18 * r
+
+
+def _triangle_bvh(points: np.ndarray, faces: np.ndarray, pad: float, device):
+    """A ``wp.Bvh`` over the faces' float32 boxes grown by ``pad`` (rounded outward): (bvh, lowers, uppers)."""
+    tri = points.astype(np.float32)[faces].astype(np.float64)
+    lo = np.nextafter((tri.min(axis=1) - pad).astype(np.float32), np.float32(-np.inf))
+    hi = np.nextafter((tri.max(axis=1) + pad).astype(np.float32), np.float32(np.inf))
+    lowers = wp.array(lo, dtype=wp.vec3, device=device)
+    uppers = wp.array(hi, dtype=wp.vec3, device=device)
+    return wp.Bvh(lowers, uppers), lowers, uppers
 
 
 QUAD_SHAPES = ("rectangle", "cube")
@@ -136,8 +161,11 @@ class DeviceScene:
         d = SceneData()
         self.points = _vec3(points, device)
         self.indices = _arr(faces, wp.int32, device)
-        self.mesh = wp.Mesh(points=self.points, indices=self.indices) if len(faces) else None
-        d.mesh = self.mesh.id if self.mesh is not None else wp.uint64(0)
+        self.bvh = None
+        if len(faces):
+            self.box_pad = triangle_box_pad(points, np.asarray(scene.camera.to_world)[:3, 3])
+            self.bvh, self._lowers, self._uppers = _triangle_bvh(np.asarray(points), faces, self.box_pad, device)
+        d.bvh = self.bvh.id if self.bvh is not None else wp.uint64(0)
         d.points = self.points
         d.indices = self.indices
         d.face_material = _arr(face_material, wp.int32, device)

@@ -12,6 +12,7 @@ import warp as wp
 from kernels.camera import camera_ray
 from kernels.integrator import light_sample_scale, self_mode
 from kernels.mesh import mesh_hit, smooth_normal, sphere_hit
+from kernels.triangle import mesh_closest, mesh_occluded, ray_shear, ray_triangle
 from kernels.offset import offset_origin
 from kernels.quad import quad_hit, ray_quad
 from kernels.rng import rand4
@@ -102,8 +103,8 @@ def probe_mesh(
     out_ns: wp.array(dtype=wp.vec3),
 ):
     i = wp.tid()
-    q = wp.mesh_query_ray(scene.mesh, o[i], d[i], INF)
-    if q.result:
+    q = mesh_closest(scene, o[i], d[i], INF)
+    if q.face >= 0:
         h = mesh_hit(scene, o[i], d[i], q)
         out_face[i] = q.face
         out_t[i] = h.t
@@ -114,6 +115,23 @@ def probe_mesh(
     else:
         out_face[i] = -1
         out_t[i] = -1.0
+
+
+@wp.kernel(enable_backward=False)
+def probe_ray_triangle(
+    o: wp.array(dtype=wp.vec3),
+    d: wp.array(dtype=wp.vec3),
+    a: wp.array(dtype=wp.vec3),
+    b: wp.array(dtype=wp.vec3),
+    c: wp.array(dtype=wp.vec3),
+    tmax: wp.array(dtype=float),
+    out_tuv: wp.array(dtype=wp.vec3),
+    out_box_dir: wp.array(dtype=wp.vec3),
+):
+    i = wp.tid()
+    r = ray_shear(d[i])
+    out_tuv[i] = ray_triangle(o[i], r, a[i], b[i], c[i], tmax[i])
+    out_box_dir[i] = r.box_dir
 
 
 @wp.kernel(enable_backward=False)
@@ -133,15 +151,15 @@ def probe_respawn_mesh(
     out_face[i] = -1
     out_face2[i] = -1
     out_t2[i] = -1.0
-    q = wp.mesh_query_ray(scene.mesh, o[i], d[i], INF)
-    if q.result:
+    q = mesh_closest(scene, o[i], d[i], INF)
+    if q.face >= 0:
         h = mesh_hit(scene, o[i], d[i], q)
         out_face[i] = q.face
         o2 = h.p
         if use_offset != 0:
             o2 = offset_origin(h.p, h.ng, h.scale, w[i])
-        q2 = wp.mesh_query_ray(scene.mesh, o2, w[i], INF)
-        if q2.result:
+        q2 = mesh_closest(scene, o2, w[i], INF)
+        if q2.face >= 0:
             out_face2[i] = q2.face
             out_t2[i] = q2.t
 
@@ -192,8 +210,8 @@ def probe_shadow(
     """
     i = wp.tid()
     out_status[i] = -1
-    q = wp.mesh_query_ray(scene.mesh, o[i], d[i], INF)
-    if not q.result:
+    q = mesh_closest(scene, o[i], d[i], INF)
+    if q.face < 0:
         return
     h = mesh_hit(scene, o[i], d[i], q)
     if h.light >= 0:
@@ -211,7 +229,7 @@ def probe_shadow(
     se = offset_origin(y, ln, light_sample_scale(scene, 0), -w)
     seg = se - so
     seg_len = wp.length(seg)
-    out_status[i] = wp.where(wp.mesh_query_ray_anyhit(scene.mesh, so, seg / seg_len, seg_len), 1, 0)
+    out_status[i] = wp.where(mesh_occluded(scene, so, seg / seg_len, seg_len), 1, 0)
 
 
 @wp.kernel(enable_backward=False)

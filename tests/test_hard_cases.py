@@ -6,9 +6,9 @@ quantity are compared pixel by pixel and channel by channel with z = (a - b) / s
 the pixel means estimated from the spread of the passes; a comparison passes when >= 99.7% of the values have
 |z| <= 4 and the mean difference over the whole image is within 4 of its standard errors. Where the property is
 exact (zero radiance, black surfaces, lights facing away, zero-area triangles) the images are compared exactly.
-Every measured figure is printed (``pytest -s``) for the record. Known defects are strict xfails whose reasons name
-the file, the cause and the fix (coplanar surfaces z-fight; Warp's BVH lets rays aimed at vertices slip through;
-float32 film sums overflow to Inf). Each case was broken once on purpose (in a copy of the code) and seen to fail.
+Every measured figure is printed (``pytest -s``) for the record. The defects these tests found (a light coplanar
+with a wall z-fought with it, Warp's BVH let rays aimed at vertices slip through, float32 film sums overflowed to Inf)
+are fixed, and their tests pass. Each case was broken once on purpose (in a copy of the code) and seen to fail.
 """
 
 from __future__ import annotations
@@ -455,44 +455,17 @@ def test_watertight_meshes_are_what_they_claim():
     assert kinds.pop("icosphere") and not any(kinds.values())
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "Warp 1.19 BVH traversal (native/intersect.h intersect_ray_aabb / intersect_ray_aabb_robust, used by "
-    "mesh_query_ray): the slab test accepts a node only if lmax >= lmin with no rounding slack, so a ray through "
-    "a vertex (or an edge) that lies on a node box's boundary can be rejected by one rounding and skip the leaf that "
-    "holds the hit, from outside as well as from inside: teapot 7 of 1170 vertex rays, icosphere 5 of 642, bunny 99 "
-    "of 34594 (2 escape entirely). The triangle test itself is watertight (see the test below). Fix upstream: "
-    "scale lmax by 1 + 2 gamma(3) (Ize 2013, pbrt's Bounds3::IntersectP); in this project: a wp.Bvh over triangle "
-    "bounds padded by a few ulps with our own Woop test, or accept it (random rays meet it with probability ~1e-7)."))
 def test_watertight_rays_at_edges_and_vertices_stop_there(device):
     """Rays aimed exactly at shared edges and vertices (from directions that see every incident face from the front)
-    of the teapot, an icosphere and the bunny (when ../shared has it) all hit the surface at their target."""
+    of the teapot, an icosphere and the bunny (when ../shared has it) all hit the surface at their target.
+    (Warp 1.19's own mesh_query_ray let 7 of the teapot's 1170 vertex rays through, 5 of 642 on the icosphere and
+    99 of 34594 on the bunny: its slab test has no rounding slack. kernels/triangle.py pads the boxes instead.)"""
     failures = {}
     for name, m, min_edges, min_vertices in _watertight_meshes():
         counts, _ = _watertight_run(device, name, m.vertices, m.faces)
         assert counts["edge"][0] >= min_edges and counts["vertex"][0] >= min_vertices
         failures[name] = {k: mi + be for k, (n, mi, be) in counts.items()}
     assert all(v == 0 for f in failures.values() for v in f.values()), failures
-
-
-def test_watertight_failures_are_bvh_traversal_not_the_triangle_test(device):
-    """The rays of the test above that escaped (up to 8 per mesh) do hit a triangle at their target when that
-    triangle is queried alone (a one-triangle mesh): the triangle test is watertight, the escape happens in the BVH
-    traversal."""
-    checked = 0
-    for name, m, *_ in _watertight_meshes():
-        _, (verts, faces, o, targets) = _watertight_run(device, name, m.vertices, m.faces)
-        cen = verts[faces].astype(np.float64).mean(axis=1)
-        for oi, ti in zip(o[:8], targets[:8]):
-            near = np.argsort(np.linalg.norm(cen - ti, axis=1))[:8]
-            hits = []
-            for f in near:
-                face, t, dist = _shoot(device, verts, faces[[f]], oi[None], ti[None])
-                if face[0] >= 0 and abs(t[0] - dist[0]) <= 1e-5 * dist[0]:
-                    hits.append(int(f))
-            assert hits, f"{name}: no triangle at {ti} is hit even alone"
-            checked += 1
-    print(f"\n[hard] {checked} escaped rays: each hits a triangle at its target when queried alone")
-    assert checked > 0  # Warp 1.19; if this fails, the traversal was fixed: drop the xfail above
 
 
 def test_watertight_check_has_power(device):

@@ -232,7 +232,7 @@ def test_sphere_free_scene_gets_a_kernel_without_sphere_code():
 
 QUAD_CODE = ("ray_quad", "quad_hit", "occluded_quads", "(var_scene).quad_", "(var_scene).num_quads",
              "(var_scene).light_quad")
-MESH_CODE = ("mesh_query_ray", "mesh_hit", "(var_scene).mesh", "(var_scene).indices")
+MESH_CODE = ("mesh_closest", "mesh_occluded", "mesh_hit", "(var_scene).bvh", "(var_scene).indices")
 
 
 def test_quads_only_where_the_scene_has_them_and_no_bvh_code_without_triangles():
@@ -240,7 +240,7 @@ def test_quads_only_where_the_scene_has_them_and_no_bvh_code_without_triangles()
     r = Renderer(box_scene(8, 8), device="cpu")
     assert r.features.meshes and not r.features.quads
     src = generated_source(r.kernel)
-    assert "mesh_query_ray" in src
+    assert all(s in src for s in MESH_CODE)
     found = [s for s in QUAD_CODE if s in src]
     assert not found, f"quad code in a quad-free variant: {found}"
     # the Cornell box file: rectangles, a cube and a sphere, all analytic: quad code and no BVH code at all
