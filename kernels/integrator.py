@@ -24,7 +24,7 @@ from kernels.camera import camera_ray
 from kernels.mesh import mesh_hit, smooth_normal, sphere_hit
 from kernels.triangle import mesh_closest, mesh_occluded
 from kernels.offset import max_abs, offset_origin
-from kernels.quad import occluded_quads, quad_hit, ray_quad
+from kernels.quad import nearest_quad, occluded_quads, quad_hit
 from kernels.rng import rand4
 from kernels.sobol import sobol4
 from kernels.sampling import reflect, sample_cosine_around, sample_parallelogram
@@ -49,10 +49,6 @@ SAMPLERS = {"independent": SAMPLER_INDEPENDENT, "sobol": SAMPLER_SOBOL}
 LIGHT_AREA = 0  # next-event samples uniform in the light's area
 LIGHT_SOLID_ANGLE = 1  # uniform in the solid angle of rectangular lights (Urena et al. 2013), area otherwise
 LIGHT_SAMPLINGS = {"area": LIGHT_AREA, "solid_angle": LIGHT_SOLID_ANGLE}
-
-# A light wins a tie with a surface coplanar with it (the seed's light sits in its ceiling's plane): its distance
-# may exceed the other's by this relative margin, far above the quads' float64 rounding and far below any real gap.
-COPLANAR_TOL = wp.constant(wp.float64(1.0e-9))
 
 SEED_RR_LAMBDA = wp.constant(0.2)
 INF = wp.constant(3.0e38)
@@ -164,28 +160,11 @@ def make_render_kernel(features: Features):
                     rays += wp.int64(1)
                 if wp.static(HAS_QUADS):
                     # first, so that the BVH query below gets the nearest quad's distance as its limit
-                    best_quad = int(-1)
                     o64 = wp.vec3d(o)
                     d64 = wp.vec3d(d)
-                    t_quad = wp.float64(tmax)
-                    best_is_light = bool(False)
-                    for i in range(scene.num_quads):
-                        if i == origin_quad:
-                            continue
-                        is_light = scene.quad_light[i] >= 0
-                        limit = t_quad
-                        if is_light:
-                            limit = t_quad * (wp.float64(1.0) + COPLANAR_TOL)
-                        elif best_is_light:
-                            limit = t_quad * (wp.float64(1.0) - COPLANAR_TOL)
-                        tq = ray_quad(o64, d64, scene.quad_center[i], scene.quad_normal[i], scene.quad_ustar[i],
-                                      scene.quad_vstar[i], limit)
-                        if tq > wp.float64(0.0):
-                            t_quad = tq
-                            best_quad = i
-                            best_is_light = is_light
-                    if best_quad >= 0:
-                        hit = quad_hit(scene, o64, d64, t_quad, best_quad)
+                    nq = nearest_quad(scene, o64, d64, wp.float64(tmax), origin_quad)
+                    if nq.index >= 0:
+                        hit = quad_hit(scene, o64, d64, nq.t, nq.index)
                         found = True
                 if wp.static(HAS_MESH):
                     mesh_limit = hit.t

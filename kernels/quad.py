@@ -15,6 +15,10 @@ edges) at a negligible growth. On the CPU the float64 loop measured as fast as a
 way; the division is skipped for planes outside the ray's range).
 The hit record clamps s, r and rebuilds the point from them, so it lies on the quad whatever the ray origin; a ray
 leaving a quad skips that quad (a plane cannot be hit again).
+
+Speed: the quads of one shape (a cube's six faces) form a group with a float64 bounding box padded by 1e-9 of its
+size; a ray that misses the box skips the group. Testing quads is most of a ray's cost in the seed's boxes (the
+Cornell box renders 1.6x faster without its cube), and most rays miss the block.
 """
 
 import warp as wp
@@ -22,6 +26,16 @@ import warp as wp
 from kernels.types import Hit, SceneData
 
 QUAD_TOL = wp.constant(wp.float64(16.0 * 2.220446049250313e-16))  # bound on the hit point's relative error, x4
+
+# A light wins a tie with a surface coplanar with it (the seed's light sits in its ceiling's plane): its distance
+# may exceed the other's by this relative margin, far above the quads' float64 rounding and far below any real gap.
+COPLANAR_TOL = wp.constant(wp.float64(1.0e-9))
+
+
+@wp.struct
+class QuadNearest:
+    t: wp.float64
+    index: int  # -1: no quad hit
 
 
 @wp.func
@@ -75,16 +89,73 @@ def quad_hit(scene: SceneData, o: wp.vec3d, d: wp.vec3d, t: wp.float64, i: int) 
 
 
 @wp.func
+def ray_box(o: wp.vec3d, d: wp.vec3d, lo: wp.vec3d, hi: wp.vec3d, tmax: wp.float64) -> bool:
+    """Does the ray o + t d meet the box [lo, hi] for some t in [0, tmax]? (Slab test; a zero direction component
+    tests the origin against that slab instead of forming 0 * inf.)"""
+    t0 = wp.float64(0.0)
+    t1 = tmax
+    for k in range(3):
+        if d[k] == wp.float64(0.0):
+            if o[k] < lo[k] or o[k] > hi[k]:
+                return False
+        else:
+            inv = wp.float64(1.0) / d[k]
+            ta = (lo[k] - o[k]) * inv
+            tb = (hi[k] - o[k]) * inv
+            t0 = wp.max(t0, wp.min(ta, tb))
+            t1 = wp.min(t1, wp.max(ta, tb))
+    return t0 <= t1
+
+
+@wp.func
+def nearest_quad(scene: SceneData, o: wp.vec3d, d: wp.vec3d, tmax: wp.float64, skip: int) -> QuadNearest:
+    """The nearest quad other than ``skip`` hit in (0, tmax); a light wins a tie (within ``COPLANAR_TOL``) with a
+    surface in its plane."""
+    best = QuadNearest()
+    best.t = tmax
+    best.index = -1
+    best_is_light = bool(False)
+    i = int(0)
+    while i < scene.num_quads:  # one flat loop (a loop over groups measured 25% slower), skipping missed groups
+        end = scene.quad_group_end[i]
+        if end > i:
+            if not ray_box(o, d, scene.quad_box_lo[i], scene.quad_box_hi[i], best.t * (wp.float64(1.0) + COPLANAR_TOL)):
+                i = end
+                continue
+        if i != skip:
+            is_light = scene.quad_light[i] >= 0
+            limit = best.t
+            if is_light:
+                limit = best.t * (wp.float64(1.0) + COPLANAR_TOL)
+            elif best_is_light:
+                limit = best.t * (wp.float64(1.0) - COPLANAR_TOL)
+            tq = ray_quad(o, d, scene.quad_center[i], scene.quad_normal[i], scene.quad_ustar[i], scene.quad_vstar[i],
+                          limit)
+            if tq > wp.float64(0.0):
+                best.t = tq
+                best.index = i
+                best_is_light = is_light
+        i += 1
+    return best
+
+
+@wp.func
 def occluded_quads(scene: SceneData, o: wp.vec3, d: wp.vec3, tmax: float, skip_a: int, skip_b: int) -> bool:
     """Any quad other than ``skip_a``, ``skip_b`` hit in (0, tmax)? (The quad the ray leaves, the light it aims at:
     a segment meets each of those planes only at its end point.)"""
     o64 = wp.vec3d(o)
     d64 = wp.vec3d(d)
     tmax64 = wp.float64(tmax)
-    for i in range(scene.num_quads):
-        if i == skip_a or i == skip_b:
-            continue
-        if ray_quad(o64, d64, scene.quad_center[i], scene.quad_normal[i], scene.quad_ustar[i], scene.quad_vstar[i],
-                    tmax64) > wp.float64(0.0):
-            return True
+    i = int(0)
+    while i < scene.num_quads:
+        end = scene.quad_group_end[i]
+        if end > i:
+            if not ray_box(o64, d64, scene.quad_box_lo[i], scene.quad_box_hi[i], tmax64):
+                i = end
+                continue
+        if i != skip_a and i != skip_b:
+            if ray_quad(o64, d64, scene.quad_center[i], scene.quad_normal[i], scene.quad_ustar[i],
+                        scene.quad_vstar[i], tmax64) > wp.float64(0.0):
+                return True
+        i += 1
     return False

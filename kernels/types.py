@@ -41,6 +41,9 @@ class SceneData:
     quad_material: wp.array(dtype=wp.int32)
     quad_light: wp.array(dtype=wp.int32)  # area light index, -1 if the quad does not emit
     num_quads: int
+    quad_group_end: wp.array(dtype=wp.int32)  # > i: quad i starts a boxed group (one shape) ending before this
+    quad_box_lo: wp.array(dtype=wp.vec3d)  # that group's bounding box, padded (set at group starts only)
+    quad_box_hi: wp.array(dtype=wp.vec3d)
     mat_kind: wp.array(dtype=wp.int32)  # 0 diffuse, 1 mirror
     mat_rgb: wp.array(dtype=wp.vec3)
     mat_twosided: wp.array(dtype=wp.int32)

@@ -3,6 +3,7 @@ other triangle, and flat arrays for the rest."""
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -80,6 +81,7 @@ class Quad:
     scale: float  # largest absolute corner coordinate
     material: int
     light: int
+    group: int = 0  # the shape it comes from: the quads of one shape are consecutive and share a bounding box
 
     def duals(self) -> tuple[np.ndarray, np.ndarray]:
         """(ustar, vstar): s = (p - center) . ustar, r = (p - center) . vstar for p on the plane."""
@@ -129,8 +131,33 @@ def split_scene(scene: Scene) -> tuple[list[Quad], list[TriangleMesh]]:
         if q is None:
             tri.append(m)
         else:
-            quads += q
+            group = quads[-1].group + 1 if quads else 0
+            quads += [dataclasses.replace(x, group=group) for x in q]
     return quads, tri
+
+
+GROUP_BOX_PAD = 1e-9  # relative to the group's size and position: far above float64 rounding in the slab test
+
+
+def quad_groups(quads: list[Quad]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per quad: the end of its group if it starts a group of several quads (one shape: a cube), else -1; and that
+    group's bounding box padded by ``GROUP_BOX_PAD`` (zeros elsewhere)."""
+    n = len(quads)
+    end = np.full(n, -1)
+    lo = np.zeros((n, 3))
+    hi = np.zeros((n, 3))
+    ids = np.array([q.group for q in quads], dtype=np.int64)
+    starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]]) if n else np.zeros(0, np.int64)
+    for a, b in zip(starts, np.r_[starts[1:], n]):
+        if b - a < 2:
+            continue  # a lone rectangle: its own test is as cheap as a box test
+        corners = np.concatenate([[q.center + su * q.half_u + sv * q.half_v for su in (-1, 1) for sv in (-1, 1)]
+                                  for q in quads[a:b]])
+        pad = GROUP_BOX_PAD * (float(np.abs(corners).max()) + float(np.ptp(corners, axis=0).max()))
+        end[a] = b
+        lo[a] = corners.min(axis=0) - pad
+        hi[a] = corners.max(axis=0) + pad
+    return end, lo, hi
 
 
 class DeviceScene:
@@ -189,6 +216,10 @@ class DeviceScene:
         d.quad_material = _arr([q.material for q in quads], wp.int32, device)
         d.quad_light = _arr([q.light for q in quads], wp.int32, device)
         d.num_quads = len(quads)
+        end, lo, hi = quad_groups(quads)
+        d.quad_group_end = _arr(end, wp.int32, device)
+        d.quad_box_lo = _vec3d(lo, device)
+        d.quad_box_hi = _vec3d(hi, device)
         light_quad = np.full(len(scene.lights), -1)
         for i, q in enumerate(quads):
             if q.light >= 0:

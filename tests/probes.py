@@ -14,7 +14,7 @@ from kernels.integrator import light_sample_scale, self_mode
 from kernels.mesh import mesh_hit, smooth_normal, sphere_hit
 from kernels.triangle import mesh_closest, mesh_occluded, ray_shear, ray_triangle
 from kernels.offset import offset_origin
-from kernels.quad import quad_hit, ray_quad
+from kernels.quad import nearest_quad, quad_hit, ray_box, ray_quad
 from kernels.rng import rand4
 from kernels.sampling import cosine_hemisphere, orthonormal_basis, reflect, sample_cosine_around, sample_parallelogram
 from kernels.sphere import SELF_NONE, ray_sphere
@@ -233,6 +233,19 @@ def probe_shadow(
 
 
 @wp.kernel(enable_backward=False)
+def probe_ray_box(
+    o: wp.array(dtype=wp.vec3d),
+    d: wp.array(dtype=wp.vec3d),
+    lo: wp.array(dtype=wp.vec3d),
+    hi: wp.array(dtype=wp.vec3d),
+    tmax: wp.array(dtype=wp.float64),
+    out: wp.array(dtype=wp.int32),
+):
+    i = wp.tid()
+    out[i] = wp.where(ray_box(o[i], d[i], lo[i], hi[i], tmax[i]), 1, 0)
+
+
+@wp.kernel(enable_backward=False)
 def probe_quads(
     scene: SceneData,
     o: wp.array(dtype=wp.vec3),
@@ -248,7 +261,7 @@ def probe_quads(
     out_q2: wp.array(dtype=wp.int32),
 ):
     """Quads (kernels/quad.py): ``ray_quad`` against quad ``direct[i]`` with ``tmax[i]`` (t_direct); the nearest quad
-    over all (q, t, p from ``quad_hit``); then, as the integrator spawns, a ray toward ``w`` from the offset hit point:
+    over all (``nearest_quad``: q, t, p from ``quad_hit``); then, as the integrator spawns, a ray toward ``w`` from the offset hit point:
     ``self_t`` is ray_quad on the same quad with no skip (should miss), ``q2`` the nearest quad skipping it."""
     i = wp.tid()
     k = direct[i]
@@ -256,14 +269,9 @@ def probe_quads(
     d64 = wp.vec3d(d[i])
     out_t_direct[i] = float(ray_quad(o64, d64, scene.quad_center[k], scene.quad_normal[k], scene.quad_ustar[k],
                                scene.quad_vstar[k], wp.float64(tmax[i])))
-    best = int(-1)
-    t_best = wp.float64(float(INF))  # float(): a fresh variable (wp.float64(INF) alone is the shared constant)
-    for j in range(scene.num_quads):
-        t = ray_quad(o64, d64, scene.quad_center[j], scene.quad_normal[j], scene.quad_ustar[j], scene.quad_vstar[j],
-                     t_best)
-        if t > wp.float64(0.0):
-            t_best = t
-            best = j
+    nq = nearest_quad(scene, o64, d64, wp.float64(float(INF)), -1)
+    best = nq.index
+    t_best = nq.t
     out_q[i] = best
     out_t[i] = -1.0
     out_self_t[i] = -2.0
@@ -277,17 +285,7 @@ def probe_quads(
         w64 = wp.vec3d(w[i])
         out_self_t[i] = float(ray_quad(o2_64, w64, scene.quad_center[best], scene.quad_normal[best],
                                        scene.quad_ustar[best], scene.quad_vstar[best], wp.float64(INF)))
-        best2 = int(-1)
-        t2 = wp.float64(float(INF))
-        for j in range(scene.num_quads):
-            if j == best:
-                continue
-            tj = ray_quad(o2_64, w64, scene.quad_center[j], scene.quad_normal[j], scene.quad_ustar[j],
-                          scene.quad_vstar[j], t2)
-            if tj > wp.float64(0.0):
-                t2 = tj
-                best2 = j
-        out_q2[i] = best2
+        out_q2[i] = nearest_quad(scene, o2_64, w64, wp.float64(float(INF)), best).index
 
 
 # ------------------------------------------------------------------------------------------------

@@ -19,10 +19,10 @@ import warp as wp
 
 import pathtracer
 from helpers import make_scene, material
-from pathtracer.device_scene import DeviceScene, mesh_quads, split_scene
+from pathtracer.device_scene import DeviceScene, mesh_quads, quad_groups, split_scene
 from pathtracer.render import Renderer
 from pathtracer.scene import TriangleMesh
-from probes import arr, launch, probe_quads
+from probes import arr, launch, probe_quads, probe_ray_box
 
 ROOT = Path(__file__).resolve().parents[1]
 CORNELL = ROOT / "scenes" / "cornell_box.xml"
@@ -145,6 +145,55 @@ def random_quads(rng, n, scale=1.0):
         v = unit(v) * scale * rng.uniform(0.2, 1.0) + 0.3 * rng.uniform(-1, 1) * u  # some shear
         quads.append(rect_mesh(rng.normal(size=3) * scale, u, v, flip=bool(rng.integers(2))))
     return quads
+
+
+def test_ray_box_against_exact_overlap():
+    """ray_box (the cube groups' cull test) says whether the segment [0, tmax] meets the box, against a reference
+    that clips the segment exactly (fractions); rays with zero direction components and origins inside included."""
+    from fractions import Fraction as F
+
+    rng = np.random.default_rng(41)
+    n = 4000
+    lo = rng.uniform(-1, 0, (n, 3))
+    hi = lo + rng.uniform(0.01, 1, (n, 3))
+    o = rng.uniform(-3, 3, (n, 3))
+    near = lo - 0.2 + rng.random((n, 3)) * (hi - lo + 0.4)  # aim near the box: about half hit it
+    d = unit(near - o)
+    d[rng.random((n, 3)) < 0.15] = 0.0  # axis-parallel rays
+    d[(d == 0).all(axis=1), 0] = 1.0
+    tmax = rng.choice([1e300, 1.0, 3.0], n)
+
+    def exact(k):
+        t0, t1 = F(0), F(tmax[k])
+        for a in range(3):
+            if d[k, a] == 0:
+                if not lo[k, a] <= o[k, a] <= hi[k, a]:
+                    return 0
+                continue
+            ta, tb = (F(lo[k, a]) - F(o[k, a])) / F(d[k, a]), (F(hi[k, a]) - F(o[k, a])) / F(d[k, a])
+            t0, t1 = max(t0, min(ta, tb)), min(t1, max(ta, tb))
+        return int(t0 <= t1)
+
+    ref = np.array([exact(k) for k in range(n)])
+    got = launch(probe_ray_box, n, "cpu", [wp.array(x, dtype=wp.vec3d) for x in (o, d, lo, hi)]
+                 + [wp.array(tmax, dtype=wp.float64)], [wp.int32])
+    assert 0.1 < ref.mean() < 0.9
+    assert (got == ref).all()
+
+
+def test_cube_groups_box_every_face():
+    """Each cube's six quads form one group whose padded box holds every corner with margin; lone rectangles have
+    no box (their own test is as cheap)."""
+    scene = pathtracer.load_file(str(CORNELL), width=8, height=8)
+    quads, _ = split_scene(scene)
+    end, lo, hi = quad_groups(quads)
+    boxed = np.flatnonzero(end >= 0)
+    assert len(boxed) == 1 and end[boxed[0]] - boxed[0] == 6  # the tall block
+    a, b = boxed[0], end[boxed[0]]
+    corners = np.array([q.center + su * q.half_u + sv * q.half_v for q in quads[a:b] for su in (-1, 1)
+                        for sv in (-1, 1)])
+    assert (corners > lo[a] + 1e-12).all() and (corners < hi[a] - 1e-12).all()
+    assert (hi[a] - lo[a] < np.ptp(corners, axis=0) + 1e-6).all()
 
 
 def test_ray_quad_matches_float64_reference():
