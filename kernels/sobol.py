@@ -10,8 +10,9 @@ Following Brent Burley, "Practical Hash-based Owen Scrambling", JCGT 9(4), 2020 
   on the top k input bits (and the seed), so it maps each elementary interval onto another one of the same size: any
   (t, m, s)-net stays a (t, m, s)-net.
 * ``sobol4(key, dim)``: the same contract as ``rand4``. ``key = (pixel, pass, seed)``; the pass is the sample index of
-  a 4-D Sobol' sequence that is shuffled (the index is Owen-scrambled too) and scrambled with seeds hashed from
-  (pixel, seed, dim): every ``dim`` gets its own independently randomised 4-D sequence (Burley's padding).
+  a 2-D Sobol' sequence (lanes 0, 1; lanes 2, 3 are independent uniforms, which the integrator never reads) that is
+  shuffled (the index is Owen-scrambled too) and scrambled with seeds hashed from (pixel, seed, dim): every ``dim``
+  gets its own independently randomised sequence (Burley's padding).
 
 Properties (tests/test_sobol.py checks them):
 
@@ -19,7 +20,7 @@ Properties (tests/test_sobol.py checks them):
   unbiased exactly as with ``rand4``;
 * for one pixel and dim, the first 2^k passes are an aligned block of 2^k indices of the Sobol' sequence (the index
   scramble is nested too), so coordinates (0, 1) form a (0, k, 2)-net: every 2^-a x 2^-(k-a) box holds exactly one
-  point, and each coordinate alone is stratified into 2^k equal intervals.
+  point, and each of the two coordinates alone is stratified into 2^k equal intervals.
 
 Passes of one pixel are not independent any more (they are negatively correlated, which is the point): a standard error
 estimated from the spread of the passes over-estimates the true error. Stratification is best at powers of two.
@@ -118,6 +119,33 @@ def sobol(index: wp.uint32, dim: int) -> wp.uint32:
     return result
 
 
+_M16_LO = wp.constant(wp.uint32(0x0000FFFF))
+
+
+@wp.func
+def pascal_reversed(index: wp.uint32) -> wp.uint32:
+    """``reverse_bits(sobol(index, 1))`` in five steps.
+
+    Dim 1's direction numbers, read LSB-first, are the polynomials (1 + x)^k over GF(2) (v_k = v_(k-1) ^
+    (v_(k-1) >> 1)), so the reversed point is B(1 + x) for B(y) = sum of index bit k times y^k: a Taylor shift by
+    one. With (1 + x)^(2^j) = 1 + x^(2^j), B(1 + x) for B = B0 + x^h B1 is B0(1 + x) + (1 + x^h) B1(1 + x): shift both
+    halves of every block, then add the high half into the low one, for blocks of 2, 4, ..., 32 bits.
+    """
+    x = index
+    x = x ^ ((x >> wp.uint32(1)) & _M1_LO)
+    x = x ^ ((x >> wp.uint32(2)) & _M2_LO)
+    x = x ^ ((x >> wp.uint32(4)) & _M4_LO)
+    x = x ^ ((x >> wp.uint32(8)) & _M8_LO)
+    x = x ^ ((x >> wp.uint32(16)) & _M16_LO)
+    return x
+
+
+@wp.func
+def sobol_dim1(index: wp.uint32) -> wp.uint32:
+    """``sobol(index, 1)`` without the general recurrence (see ``pascal_reversed``)."""
+    return reverse_bits(pascal_reversed(index))
+
+
 @wp.func
 def laine_karras_permutation(x: wp.uint32, seed: wp.uint32) -> wp.uint32:
     """Burley's improved Laine-Karras hash: bit k of the result depends only on bits 0..k of ``x`` (and the seed)."""
@@ -136,12 +164,6 @@ def nested_uniform_scramble(x: wp.uint32, seed: wp.uint32) -> wp.uint32:
 
 
 @wp.func
-def hash_combine(seed: wp.uint32, v: wp.uint32) -> wp.uint32:
-    """boost::hash_combine, as in Burley's listing. Weak on its own: finish with ``hash_u32`` before use as a seed."""
-    return seed ^ (v + _GOLDEN + (seed << wp.uint32(6)) + (seed >> wp.uint32(2)))
-
-
-@wp.func
 def hash_u32(x: wp.uint32) -> wp.uint32:
     """MurmurHash3's 32-bit finaliser: a bijection with full avalanche."""
     x = x ^ (x >> wp.uint32(16))
@@ -153,25 +175,25 @@ def hash_u32(x: wp.uint32) -> wp.uint32:
 
 
 @wp.func
-def scrambled_coordinate(index: wp.uint32, coord: int, seed: wp.uint32) -> float:
-    """Coordinate ``coord`` of Sobol' point ``index``, Owen-scrambled with its own seed, as a float in [0, 1)."""
-    # Each coordinate needs its own independent scramble. hash_combine alone gives the four coordinates seeds with
-    # related low bits (bit 0, which flips the top output bit, always differs between coordinates 0 and 1), so the
-    # scrambles would be coupled; the finaliser makes the seeds independent-looking.
-    s = hash_u32(hash_combine(seed, wp.uint32(coord)))
-    return bits_to_unit(nested_uniform_scramble(sobol(index, coord), s))
-
-
-@wp.func
 def sobol4(key: wp.vec3ui, dim: wp.uint32) -> wp.vec4:
-    """Drop-in for ``rand4``: point ``key[1]`` (the pass) of a shuffled, Owen-scrambled 4-D Sobol' sequence of its own
+    """Drop-in for ``rand4``: point ``key[1]`` (the pass) of a shuffled, Owen-scrambled Sobol' sequence of its own
     for pixel ``key[0]``, seed ``key[2]`` and dimension ``dim``. Each point is uniform on [0, 1)^4; the first 2^k
-    passes of one (pixel, seed, dim) are a (0, k, 2)-net in coordinates (0, 1) and stratified in each coordinate."""
+    passes of one (pixel, seed, dim) are a (0, k, 2)-net in lanes (0, 1) and stratified in each of them.
+
+    Lanes 0 and 1 are Sobol' dims 0 and 1 (the integrator uses only these two: a light or a bounce direction, a
+    camera jitter, a roulette draw). Lanes 2 and 3 are independent uniforms, as in ``rand4``: Sobol' dims 2 and 3
+    by the general recurrence of ``sobol`` made a Sobol' path 1.5x slower than an independent one, for lanes
+    nothing reads."""
     h = pcg4d(wp.vec4ui(key[0], key[2], dim, SOBOL_SALT))
     index = nested_uniform_scramble(key[1], h[0])  # shuffle: a nested permutation of the pass indices
+    # lanes 2, 3: independent uniforms from the pixel's fourth hash and the pass (hash_u32 is a bijection, so no two
+    # passes share them); lanes 0, 1 scramble with the second and third hashes (independent seeds)
+    g = hash_u32(h[3] ^ hash_u32(key[1] + _GOLDEN))
+    # nested_uniform_scramble(x, s) = reverse(LK(reverse(x), s)): with reverse(sobol(i, 0)) = i and
+    # reverse(sobol(i, 1)) = pascal_reversed(i), the inner reversals cancel
     return wp.vec4(
-        scrambled_coordinate(index, 0, h[1]),
-        scrambled_coordinate(index, 1, h[1]),
-        scrambled_coordinate(index, 2, h[1]),
-        scrambled_coordinate(index, 3, h[1]),
+        bits_to_unit(reverse_bits(laine_karras_permutation(index, h[1]))),
+        bits_to_unit(reverse_bits(laine_karras_permutation(pascal_reversed(index), h[2]))),
+        bits_to_unit(g),
+        bits_to_unit(hash_u32(g ^ _FMIX1)),
     )

@@ -15,7 +15,8 @@ import warp as wp
 
 from helpers import chi2_stat, chi2_upper
 from kernels.rng import rand4
-from kernels.sobol import hash_combine, laine_karras_permutation, nested_uniform_scramble, reverse_bits, sobol, sobol4
+from kernels.sobol import (laine_karras_permutation, nested_uniform_scramble, reverse_bits, sobol,
+                           sobol4, sobol_dim1)
 
 # ------------------------------------------------------------------------------------------------
 # reference data
@@ -83,7 +84,7 @@ MODE_SOBOL = 0
 MODE_REVERSE = 1
 MODE_LK = 2
 MODE_SCRAMBLE = 3
-MODE_HASH_COMBINE = 4
+MODE_SOBOL_DIM1 = 5
 
 
 @wp.kernel(enable_backward=False)
@@ -101,7 +102,7 @@ def probe_sobol_bits(xs: wp.array(dtype=wp.uint32), seeds: wp.array(dtype=wp.uin
     elif mode == 3:
         r = nested_uniform_scramble(x, seeds[i])
     else:
-        r = hash_combine(x, seeds[i])
+        r = sobol_dim1(x)
     out[i] = r
 
 
@@ -183,6 +184,9 @@ def test_sobol_matches_reference_table(device):
                           np.array([2**32 - 1, 2**31, 2**31 - 1], np.uint32)])
     for d in range(4):
         assert np.array_equal(_bits(device, MODE_SOBOL, idx, dims=d), ref_sobol(idx, d)), f"dim {d}"
+    # the fast dim 1 that sobol4 uses is the same function
+    assert np.array_equal(_bits(device, MODE_SOBOL_DIM1, np.concatenate([idx, pow2])),
+                          ref_sobol(np.concatenate([idx, pow2]), 1))
     # the sequence property the sampler relies on: every aligned block of 2^m points is a (0, m, 2)-net in dims 0, 1
     for m in (4, 7, 10):
         start = (12345 >> m) << m
@@ -200,9 +204,6 @@ def test_bit_functions_match_numpy(device):
     assert np.array_equal(_bits(device, MODE_LK, x, s), ref_laine_karras(x, s))
     scr = ref_reverse_bits(ref_laine_karras(ref_reverse_bits(x), s))
     assert np.array_equal(_bits(device, MODE_SCRAMBLE, x, s), scr)
-    with np.errstate(over="ignore"):
-        hc = x ^ (s + np.uint32(0x9E3779B9) + (x << np.uint32(6)) + (x >> np.uint32(2)))
-    assert np.array_equal(_bits(device, MODE_HASH_COMBINE, x, s), hc)
 
 
 def test_scramble_is_a_nested_bijection(device):
@@ -319,7 +320,7 @@ def test_sobol4_uniformity(device):
 
 
 def test_sobol4_stratification(device):
-    """First 2^k passes of one (pixel, seed, dim): (0, k, 2)-net in lanes (0, 1), every lane 1-D stratified."""
+    """First 2^k passes of one (pixel, seed, dim): (0, k, 2)-net in lanes (0, 1), each of them 1-D stratified."""
     kmax = 10
     for pixel, seed, dim in ((0, 0, 0), (123456, 99, 1), (7, 2**32 - 1, 37)):
         a = _sample(device, _keys([pixel], np.arange(1 << kmax), seed), dim)
@@ -327,7 +328,7 @@ def test_sobol4_stratification(device):
         for k in range(kmax + 1):
             blk = q[: 1 << k]
             assert is_net(blk[:, 0], blk[:, 1], k, bits=24), (pixel, seed, dim, k)
-            for lane in range(4):
+            for lane in range(2):  # lanes 2, 3 are independent uniforms (nothing reads them)
                 assert len(np.unique(blk[:, lane] >> np.uint64(24 - k))) == 1 << k, (pixel, dim, k, lane)
         # later aligned blocks of passes are nets too
         for k, start in ((4, 16), (6, 384), (8, 768)):
@@ -371,9 +372,10 @@ def test_sobol4_integrates_better_than_rand4(device, name, f, exact, gain):
     """1024 pixels x 64 passes: both unbiased (mean over pixels within 4 SE); sobol4's per-pixel RMS error smaller."""
     rms_sobol, rms_rand = _integrate(device, f, exact)
     assert rms_sobol * gain < rms_rand, (name, rms_sobol, rms_rand)
-    # lanes 2, 3 (sobol dims 2, 3 of the group: stratified in 1-D, not a (0, m, 2)-net together) still help
+    # lanes 2, 3 are independent uniforms (the integrator reads only lanes 0, 1): unbiased (checked in _integrate),
+    # and no better than rand4 (an RMS over 1024 pixels has a relative standard error of about 2%)
     rms_sobol23, rms_rand23 = _integrate(device, f, exact, lanes=(2, 3))
-    assert rms_sobol23 * 2.0 < rms_rand23, (name, rms_sobol23, rms_rand23)
+    assert 0.8 < rms_sobol23 / rms_rand23 < 1.25, (name, rms_sobol23, rms_rand23)
 
 
 def test_sobol_sampler_renders_unbiased_and_deterministic():
