@@ -80,6 +80,7 @@ def configs(quick: bool, have_mitsuba: bool, samplers: list[str]) -> list[Config
     return out
 
 
+TIME_REPS = 3  # each rung is timed this many times (the same seed: the same image), the median is reported
 THREAD_SPP = 128
 THREAD_REPS = 7
 
@@ -114,10 +115,11 @@ def ours_ladder(scene_name: str, cfg: Config, ladder: list[int], ref: np.ndarray
     r = pathtracer.Renderer(scene, **kwargs)
     rows = []
     for spp in ladder:
-        sums = r.render_passes(seed=1, first_pass=0, count=spp)
-        img = sums.mean
+        runs = [r.render_passes(seed=1, first_pass=0, count=spp) for _ in range(TIME_REPS)]  # the same image each
+        seconds = float(np.median([x.seconds for x in runs]))
+        img = runs[0].mean
         paths = spp * w * h
-        rows.append(Row(scene_name, cfg.label, spp, sums.seconds, rel_mse(img, ref), paths / sums.seconds,
+        rows.append(Row(scene_name, cfg.label, spp, seconds, rel_mse(img, ref), paths / seconds,
                         extra={"compile_seconds": r.compile_seconds, "threads": r.threads}))
     # rays per path from an instrumented variant (same seed, so the same paths), then rays/s of the timed runs
     counted = pathtracer.Renderer(scene, count_rays=True, **kwargs).render_passes(seed=1, first_pass=0, count=4)
@@ -135,9 +137,12 @@ def mitsuba_ladder(scene_name: str, ladder: list[int], ref: np.ndarray, w: int, 
     rows = []
     for spp in ladder:
         np.array(mi.render(scene, spp=spp, seed=999))  # JIT warm-up for this size: not timed
-        t0 = time.perf_counter()
-        img = np.array(mi.render(scene, spp=spp, seed=1), dtype=np.float32)[..., :3]
-        t = time.perf_counter() - t0
+        ts = []
+        for _ in range(TIME_REPS):
+            t0 = time.perf_counter()
+            img = np.array(mi.render(scene, spp=spp, seed=1), dtype=np.float32)[..., :3]
+            ts.append(time.perf_counter() - t0)
+        t = float(np.median(ts))
         rows.append(Row(scene_name, "mitsuba llvm_ad_rgb", spp, t, rel_mse(img, ref), spp * w * h / t))
     return rows
 
@@ -245,7 +250,7 @@ def markdown(rows: list[Row], refs: dict, args, wall: float, compiles=None, scal
     lines += [
              f"Machine: {machine()}. Command: `python examples/bench.py {' '.join(sys.argv[1:])}` "
              f"({wall / 60:.1f} min). Image {args.width}x{args.height}, the scene files' max_depth and rr_depth.",
-             "Seconds exclude compilation and JIT warm-up. relMSE = mean((I - R)^2 / (R^2 + 0.01)); "
+             f"Seconds: the median of {TIME_REPS} runs of each rung, excluding compilation and JIT warm-up. relMSE = mean((I - R)^2 / (R^2 + 0.01)); "
              "efficiency = 1 / (relMSE x seconds); time to 1e-3 = seconds x relMSE / 1e-3 at the last rung.", ""]
     if compiles:
         lines += ["## Compile and start-up", "",
