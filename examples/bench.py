@@ -47,6 +47,7 @@ class Config:
     sampler: str = "independent"
     threads: int | None = None
     mitsuba: bool = False
+    light_tracing: bool = False
 
 
 @dataclass
@@ -75,6 +76,11 @@ def configs(quick: bool, have_mitsuba: bool, samplers: list[str]) -> list[Config
     for s in samplers:
         if s != "independent":
             out += [Config(f"K={k} {s}", light_samples=k, sampler=s) for k in ([1, 8] if quick else [1, 2, 4, 8])]
+    # light tracing: applies to the scenes with mirrors (elsewhere the same as the configuration without it)
+    out.append(Config("K=1 lt", light_samples=1, light_tracing=True))
+    for s in samplers:
+        if s != "independent":
+            out.append(Config(f"K=1 {s} lt", light_samples=1, sampler=s, light_tracing=True))
     if have_mitsuba:
         out.append(Config("mitsuba llvm_ad_rgb", mitsuba=True))
     return out
@@ -109,7 +115,7 @@ def load(scene: str, width: int, height: int):
 
 def ours_ladder(scene_name: str, cfg: Config, ladder: list[int], ref: np.ndarray, w: int, h: int) -> list[Row]:
     scene = load(scene_name, w, h)
-    kwargs = dict(light_samples=cfg.light_samples, rr=cfg.rr, threads=cfg.threads)
+    kwargs = dict(light_samples=cfg.light_samples, rr=cfg.rr, threads=cfg.threads, light_tracing=cfg.light_tracing)
     if cfg.sampler != "independent":
         kwargs["sampler"] = cfg.sampler
     r = pathtracer.Renderer(scene, **kwargs)

@@ -36,11 +36,12 @@ def batch_stats(images: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     return stack.mean(axis=0), stack.var(axis=0, ddof=1) / b
 
 
-def render_ours(path: str, params: dict, spp: int, batches: int, max_depth: int | None, rr: str | None):
+def render_ours(path: str, params: dict, spp: int, batches: int, max_depth: int | None, rr: str | None,
+                light_tracing: bool = False):
     import pathtracer
 
     scene = pathtracer.load_file(path, **params)
-    r = pathtracer.Renderer(scene, max_depth=max_depth, rr=rr)
+    r = pathtracer.Renderer(scene, max_depth=max_depth, rr=rr, light_tracing=light_tracing)
     per = spp // batches
     images, t = [], 0.0
     for b in range(batches):
@@ -98,6 +99,7 @@ def main(argv=None) -> int:
     ap.add_argument("--max-depth", type=int, default=None, help="override the file's max_depth in both")
     ap.add_argument("--width", type=int, default=None)
     ap.add_argument("--height", type=int, default=None)
+    ap.add_argument("--light-tracing", action="store_true", help="our caustics from light paths")
     ap.add_argument("--rr", default=None, help="our roulette rule (default: the file's, throughput)")
     ap.add_argument("--variant", default=None, help="Mitsuba variant (default llvm_ad_rgb if DRJIT_LIBLLVM_PATH "
                                                     "is set, else scalar_rgb)")
@@ -118,7 +120,7 @@ def main(argv=None) -> int:
 
     import pathtracer
 
-    ours_imgs, t_ours, t_compile = render_ours(a.scene, params, a.spp, a.batches, None, a.rr)
+    ours_imgs, t_ours, t_compile = render_ours(a.scene, params, a.spp, a.batches, None, a.rr, a.light_tracing)
     mi_imgs, t_mi = render_mitsuba(a.scene, params, a.spp, a.batches, None, variant)
     ours, var_o = batch_stats(ours_imgs)
     ref, var_r = batch_stats(mi_imgs)

@@ -69,6 +69,7 @@ class Features:
     sampler: int = SAMPLER_INDEPENDENT
     light_sampling: int = LIGHT_AREA
     count_rays: bool = False  # instrumented variant for benchmarks: counts closest-hit and shadow rays
+    light_tracing: bool = False  # caustics seen directly are left to the light tracer (kernels/light_tracer.py)
 
 
 @wp.func
@@ -98,6 +99,62 @@ def light_sample_scale(scene: SceneData, light: int) -> float:
     return max_abs(scene.light_center[light]) + wp.length(scene.light_half_u[light]) + wp.length(scene.light_half_v[light])
 
 
+def make_tracers(features: Features):
+    """(trace, occluded): nearest hit and shadow test over exactly the primitive kinds in ``features``."""
+    HAS_MESH = features.meshes
+    HAS_QUADS = features.quads
+    HAS_SPHERES = features.spheres
+    HAS_SMOOTH = features.smooth_normals
+
+    @wp.func
+    def trace(scene: SceneData, o: wp.vec3, d: wp.vec3, tmax: float, origin_quad: int, origin_sphere: int,
+              origin_normal: wp.vec3) -> Hit:
+        """Nearest hit in (0, tmax) over the primitive kinds the scene has; ``material`` -1 when the ray escapes."""
+        hit = Hit()
+        hit.t = tmax
+        hit.material = -1
+        if wp.static(HAS_QUADS):
+            # first, so that the BVH query below gets the nearest quad's distance as its limit
+            o64 = wp.vec3d(o)
+            d64 = wp.vec3d(d)
+            nq = nearest_quad(scene, o64, d64, wp.float64(tmax), origin_quad)
+            if nq.index >= 0:
+                hit = quad_hit(scene, o64, d64, nq.t, nq.index)
+        if wp.static(HAS_MESH):
+            mesh_limit = hit.t
+            if hit.material >= 0 and hit.light >= 0:
+                mesh_limit = hit.t * (1.0 - 1.0e-5)  # the light also wins a float32 tie with a triangle
+            q = mesh_closest(scene, o, d, mesh_limit)
+            if q.face >= 0:
+                hit = mesh_hit(scene, o, d, q)
+                if wp.static(HAS_SMOOTH):
+                    hit.ns = smooth_normal(scene, q.face, q.u, q.v, hit.ng)
+        if wp.static(HAS_SPHERES):
+            for i in range(scene.num_spheres):
+                t = ray_sphere(o, d, scene.sphere_center[i], scene.sphere_radius[i], hit.t,
+                               self_mode(origin_sphere, i, origin_normal, d))
+                if t >= 0.0:
+                    hit = sphere_hit(scene, o, d, t, i)
+        return hit
+
+    @wp.func
+    def occluded(scene: SceneData, o: wp.vec3, d: wp.vec3, tmax: float, skip_quad_a: int, skip_quad_b: int,
+                 origin_sphere: int, origin_normal: wp.vec3) -> bool:
+        """Is anything hit in (0, tmax)? (The quads skipped are those the segment's two ends lie on.)"""
+        if wp.static(HAS_QUADS):
+            if occluded_quads(scene, o, d, tmax, skip_quad_a, skip_quad_b):
+                return True
+        if wp.static(HAS_MESH):
+            if mesh_occluded(scene, o, d, tmax):
+                return True
+        if wp.static(HAS_SPHERES):
+            if occluded_spheres(scene, o, d, tmax, origin_sphere, origin_normal):
+                return True
+        return False
+
+    return trace, occluded
+
+
 def make_render_kernel(features: Features):
     """Compile-time specialised integrator kernel for ``features`` (see module docstring)."""
     HAS_MESH = features.meshes
@@ -111,6 +168,9 @@ def make_render_kernel(features: Features):
     COUNT_RAYS = features.count_rays
     SOLID_ANGLE = features.light_sampling == LIGHT_SOLID_ANGLE
     draw4 = sobol4 if features.sampler == SAMPLER_SOBOL else rand4  # picked at compile time
+    LIGHT_TRACING = features.light_tracing
+
+    trace, occluded = make_tracers(features)
 
     @wp.kernel(enable_backward=False, module="unique")
     def render_pass(
@@ -147,43 +207,18 @@ def make_render_kernel(features: Features):
         origin_normal = wp.vec3(0.0)  # outward normal of that sphere at the origin
         origin_quad = int(-1)  # quad the current ray starts on (it cannot hit that plane again), -1 if none
         rays = wp.int64(0)  # rays traced (counted only in the instrumented variant)
+        # camera -> diffuse first hit -> mirrors -> light: the light tracer's share of path space, when it runs
+        lt_owned = bool(False)
 
         if wp.static(VIEW == VIEW_DIRECTION):
             L = 0.5 * d + wp.vec3(0.5)
         else:
             while True:
                 # ---------------- nearest hit ----------------
-                hit = Hit()
-                hit.t = tmax
-                found = bool(False)
                 if wp.static(COUNT_RAYS):
                     rays += wp.int64(1)
-                if wp.static(HAS_QUADS):
-                    # first, so that the BVH query below gets the nearest quad's distance as its limit
-                    o64 = wp.vec3d(o)
-                    d64 = wp.vec3d(d)
-                    nq = nearest_quad(scene, o64, d64, wp.float64(tmax), origin_quad)
-                    if nq.index >= 0:
-                        hit = quad_hit(scene, o64, d64, nq.t, nq.index)
-                        found = True
-                if wp.static(HAS_MESH):
-                    mesh_limit = hit.t
-                    if found and hit.light >= 0:
-                        mesh_limit = hit.t * (1.0 - 1.0e-5)  # the light also wins a float32 tie with a triangle
-                    q = mesh_closest(scene, o, d, mesh_limit)
-                    if q.face >= 0:
-                        hit = mesh_hit(scene, o, d, q)
-                        if wp.static(HAS_SMOOTH):
-                            hit.ns = smooth_normal(scene, q.face, q.u, q.v, hit.ng)
-                        found = True
-                if wp.static(HAS_SPHERES):
-                    for i in range(scene.num_spheres):
-                        t = ray_sphere(o, d, scene.sphere_center[i], scene.sphere_radius[i], hit.t,
-                                       self_mode(origin_sphere, i, origin_normal, d))
-                        if t >= 0.0:
-                            hit = sphere_hit(scene, o, d, t, i)
-                            found = True
-                if not found:
+                hit = trace(scene, o, d, tmax, origin_quad, origin_sphere, origin_normal)
+                if hit.material < 0:
                     break  # the sky is black
 
                 if wp.static(VIEW == VIEW_NORMAL):
@@ -194,7 +229,7 @@ def make_render_kernel(features: Features):
 
                 # ---------------- emission seen directly or through mirrors ----------------
                 if wp.static(HAS_LIGHTS):
-                    if count_emission and hit.light >= 0 and front:
+                    if count_emission and hit.light >= 0 and front and not lt_owned:
                         if depth > 0 or params.hide_emitters == 0:
                             L += wp.cw_mul(beta, scene.light_radiance[hit.light])
 
@@ -264,18 +299,12 @@ def make_render_kernel(features: Features):
                                 if seg_len <= 0.0:
                                     continue
                                 sd = seg / seg_len
-                                blocked = bool(False)
                                 if wp.static(COUNT_RAYS):
                                     rays += wp.int64(1)
+                                light_quad = int(-1)
                                 if wp.static(HAS_QUADS):
-                                    blocked = occluded_quads(scene, so, sd, seg_len, hit.quad, scene.light_quad[l])
-                                if wp.static(HAS_MESH):
-                                    if not blocked:
-                                        blocked = mesh_occluded(scene, so, sd, seg_len)
-                                if wp.static(HAS_SPHERES):
-                                    if not blocked:
-                                        blocked = occluded_spheres(scene, so, sd, seg_len, hit.sphere, hit.ng)
-                                if not blocked:
+                                    light_quad = scene.light_quad[l]
+                                if not occluded(scene, so, sd, seg_len, hit.quad, light_quad, hit.sphere, hit.ng):
                                     if omega > 0.0:
                                         Ll += cos_x * omega
                                     else:
@@ -288,6 +317,8 @@ def make_render_kernel(features: Features):
                     dim += wp.uint32(1)
                     wi = sample_cosine_around(ns, u[0], u[1])
                     count_emission = False
+                    if wp.static(LIGHT_TRACING):
+                        lt_owned = depth == 0
 
                 if wp.dot(wi, ng) <= 0.0:
                     break  # the new direction would go through the surface

@@ -8,6 +8,7 @@ is owned by one thread and sums its passes in pass order, so the image is bit-id
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import threading
 import time
@@ -20,6 +21,7 @@ import numpy as np
 import warp as wp
 
 from kernels.integrator import LIGHT_SAMPLINGS, RR_RULES, SAMPLERS, VIEWS, render_kernel
+from kernels.light_tracer import fold_pass, light_kernel
 from kernels.types import PassParams
 from pathtracer.device_scene import DeviceScene
 from pathtracer.diagnostics import roulette_variance_warning
@@ -31,6 +33,7 @@ DEFAULT_LIGHT_SAMPLES = 1
 DEFAULT_RR = "throughput"
 DEFAULT_SAMPLER = "independent"
 DEFAULT_LIGHT_SAMPLING = "area"
+DEFAULT_LIGHT_TRACING = False
 UINT32_LIMIT = 2**32
 
 
@@ -44,15 +47,28 @@ class PassSum:
     discarded: int = 0  # non-finite samples dropped (never reach the image)
     seconds: float = 0.0  # time spent rendering (excluding compilation)
     rays: int = 0  # rays traced, counted only by a Renderer made with count_rays=True
+    # the light tracer's share (caustics seen directly), per pass, when it runs: independent of the path tracer's
+    lt_sum: np.ndarray | None = None
+    lt_sum_sq: np.ndarray | None = None
 
     def __add__(self, other: "PassSum") -> "PassSum":
+        def add(a, b):
+            return b if a is None else a if b is None else a + b
+
         return PassSum(self.sum + other.sum, self.sum_sq + other.sum_sq, self.passes + other.passes,
-                       self.discarded + other.discarded, self.seconds + other.seconds, self.rays + other.rays)
+                       self.discarded + other.discarded, self.seconds + other.seconds, self.rays + other.rays,
+                       add(self.lt_sum, other.lt_sum), add(self.lt_sum_sq, other.lt_sum_sq))
 
     @property
     def mean(self) -> np.ndarray:
         """Linear radiance, float32 (H, W, 3)."""
-        return (self.sum / max(self.passes, 1)).astype(np.float32)
+        total = self.sum if self.lt_sum is None else self.sum + self.lt_sum
+        return (total / max(self.passes, 1)).astype(np.float32)
+
+    @staticmethod
+    def _var_of_mean(total: np.ndarray, total_sq: np.ndarray, n: int) -> np.ndarray:
+        m = total / n
+        return np.maximum(total_sq / n - m * m, 0.0) * n / (n - 1) / n
 
     @property
     def variance_of_mean(self) -> np.ndarray:
@@ -60,9 +76,10 @@ class PassSum:
         n = self.passes
         if n < 2:
             return np.full_like(self.sum, np.inf)
-        m = self.sum / n
-        var = np.maximum(self.sum_sq / n - m * m, 0.0) * n / (n - 1)
-        return var / n
+        var = self._var_of_mean(self.sum, self.sum_sq, n)
+        if self.lt_sum is not None:  # the two estimators use independent random numbers: variances add
+            var = var + self._var_of_mean(self.lt_sum, self.lt_sum_sq, n)
+        return var
 
 
 def resolve_device(device: str | None) -> str:
@@ -106,6 +123,10 @@ class Renderer:
     light_sampling "solid_angle" samples rectangular lights uniformly in the solid angle they subtend (Urena et al.
     2013) instead of uniformly in area ("area", default): far less variance near a light.
     count_rays compiles an instrumented variant that counts every ray traced (for benchmarks).
+    light_tracing: caustics seen directly (light -> mirrors -> a diffuse surface -> camera) from light paths
+    (kernels/light_tracer.py) instead of camera paths (default off; it applies only to scenes with mirrors and
+    lights, and max_depth -1 or >= 3). Far less noise where the camera sees the surfaces the caustics fall on, far
+    more where it sees only a sliver of them (a narrow view): light paths rarely land there.
     """
 
     scene: Scene
@@ -118,6 +139,7 @@ class Renderer:
     sampler: str | None = None
     count_rays: bool = False
     light_sampling: str | None = None
+    light_tracing: bool | None = None
     compile_seconds: float = field(init=False, default=0.0)
 
     def __post_init__(self):
@@ -151,9 +173,18 @@ class Renderer:
 
         self.features = DeviceScene.features(self.scene, self.view, self.rr, self.sampler, self.count_rays,
                                              self.light_sampling)
+        possible = self.features.mirrors and self.features.lights and self.view == "radiance" and (
+            self.max_depth < 0 or self.max_depth >= 3)
+        wanted = DEFAULT_LIGHT_TRACING if self.light_tracing is None else bool(self.light_tracing)
+        self.light_tracing = wanted and possible
+        self.features = dataclasses.replace(self.features, light_tracing=self.light_tracing)
         self.kernel = render_kernel(self.features)
+        self.light_kernel = light_kernel(self.features) if self.light_tracing else None
         t0 = time.perf_counter()
         wp.load_module(self.kernel.module, device=self.device)
+        if self.light_kernel is not None:
+            wp.load_module(self.light_kernel.module, device=self.device)
+            wp.load_module(fold_pass.module, device=self.device)
         self.compile_seconds = time.perf_counter() - t0
         with wp.ScopedDevice(self.device):
             self.dscene = DeviceScene(self.scene, self.device)
@@ -183,6 +214,10 @@ class Renderer:
             accum_sq = wp.zeros(npix, dtype=wp.vec3d)
             discarded = wp.zeros(self.threads, dtype=wp.int32)  # one counter per worker thread
             rays = wp.zeros(self.threads, dtype=wp.int64)
+            lt = None
+            if self.light_kernel is not None:
+                lt = {k: wp.zeros(npix, dtype=wp.vec3d) for k in ("splat", "sum", "sum_sq")}
+                lt["discarded"] = wp.zeros(1, dtype=wp.int32)
         rows_of = [len(range(w, s.height, self.threads)) for w in range(self.threads)]
         it = s.integrator
 
@@ -204,9 +239,22 @@ class Renderer:
                           outputs=[accum, accum_sq, discarded, rays], device=self.device, record_cmd=True)
                 for w in range(self.threads)]
 
+        workers = self.threads
+        if lt is not None:
+            # one more worker, for the light paths: pass after pass into its own sums, so the image does not depend
+            # on the thread count either
+            cmds.append(wp.launch(self.light_kernel, dim=npix,
+                                  inputs=[self.dscene.data, self.dscene.camera, params(0, first_pass), npix],
+                                  outputs=[lt["splat"], lt["discarded"]], device=self.device, record_cmd=True))
+            fold = wp.launch(fold_pass, dim=npix, inputs=[lt["splat"], lt["sum"], lt["sum_sq"]],
+                             device=self.device, record_cmd=True)
+            workers += 1
+
         def launch(worker: int, pass_index: int):
-            cmds[worker].set_param_by_name("params", params(worker, pass_index))
+            cmds[worker].set_param_by_name("params", params(min(worker, self.threads - 1), pass_index))
             cmds[worker].launch()
+            if worker == self.threads:
+                fold.launch()
 
         bar = None
         if progress:
@@ -221,33 +269,35 @@ class Renderer:
             if pool is not None and callback is None:
                 # Free-running workers: each owns its rows and runs every pass in order, with no barrier
                 # between passes (a barrier costs the slower worker's lead every pass).
-                done = self._run_free(pool, launch, passes, bar)
+                done = self._run_free(pool, launch, passes, bar, workers)
             else:
                 for pass_index in passes:
                     if pool is None:
-                        launch(0, pass_index)
+                        for w in range(workers):
+                            launch(w, pass_index)
                     else:
-                        for f in [pool.submit(launch, w, pass_index) for w in range(self.threads)]:
+                        for f in [pool.submit(launch, w, pass_index) for w in range(workers)]:
                             f.result()
                     done += 1
                     if bar is not None:
                         bar.update(1)
                     if callback is not None:
                         wp.synchronize_device(self.device)
-                        if callback(pass_index, self._sums(accum, accum_sq, discarded, rays, done, t0)) is False:
+                        if callback(pass_index, self._sums(accum, accum_sq, discarded, rays, done, t0, lt)) is False:
                             break
             wp.synchronize_device(self.device)
         finally:
             if bar is not None:
                 bar.close()
-        return self._sums(accum, accum_sq, discarded, rays, done, t0)
+        return self._sums(accum, accum_sq, discarded, rays, done, t0, lt)
 
     def _worker_pool(self) -> ThreadPoolExecutor | None:
         """The renderer's worker threads, started once and reused by every call (None with one thread)."""
         if self.threads == 1:
-            return None
+            return None  # (with light tracing too: one core, one thread, the two kernels one after the other)
         if getattr(self, "_pool", None) is None:
-            self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="pathtracer")
+            workers = self.threads + (self.light_kernel is not None)
+            self._pool = ThreadPoolExecutor(workers, thread_name_prefix="pathtracer")
         return self._pool
 
     def close(self) -> None:
@@ -262,10 +312,10 @@ class Renderer:
         except Exception:
             pass
 
-    def _run_free(self, pool: ThreadPoolExecutor, launch, passes: range, bar) -> int:
+    def _run_free(self, pool: ThreadPoolExecutor, launch, passes: range, bar, workers: int) -> int:
         """Every worker renders all ``passes`` on its rows; returns the number of passes done (all of them)."""
         lock = threading.Lock()
-        completed = [0] * self.threads
+        completed = [0] * workers
         shown = [0]
         stop = threading.Event()
 
@@ -281,7 +331,7 @@ class Renderer:
                         bar.update(low - shown[0])
                     shown[0] = low
 
-        futures = [pool.submit(worker, w) for w in range(self.threads)]
+        futures = [pool.submit(worker, w) for w in range(workers)]
         try:
             for f in futures:
                 f.result()
@@ -290,11 +340,16 @@ class Renderer:
             raise
         return len(passes)
 
-    def _sums(self, accum, accum_sq, discarded, rays, done: int, t0: float) -> PassSum:
+    def _sums(self, accum, accum_sq, discarded, rays, done: int, t0: float, lt=None) -> PassSum:
         s = self.scene
         shape = (s.height, s.width, 3)
-        return PassSum(accum.numpy().reshape(shape).copy(), accum_sq.numpy().reshape(shape).copy(),
+        sums = PassSum(accum.numpy().reshape(shape).copy(), accum_sq.numpy().reshape(shape).copy(),
                        done, int(discarded.numpy().sum()), time.perf_counter() - t0, int(rays.numpy().sum()))
+        if lt is not None:
+            sums.lt_sum = lt["sum"].numpy().reshape(shape).copy()
+            sums.lt_sum_sq = lt["sum_sq"].numpy().reshape(shape).copy()
+            sums.discarded += int(lt["discarded"].numpy()[0])
+        return sums
 
 
 _lock = threading.Lock()
@@ -313,6 +368,7 @@ def render(
     view: str = "radiance",
     sampler: str | None = None,
     light_sampling: str | None = None,
+    light_tracing: bool | None = None,
     progress: bool = True,
     callback: Callable[[int, PassSum], object] | None = None,
     stats: dict | None = None,
@@ -326,6 +382,7 @@ def render(
     after the first bounce). threads: CPU worker threads (default: all cores); the image does not depend on it. view: "radiance", "direction" or "normal".
     sampler: "independent" (default) or "sobol" (Owen-scrambled Sobol' points, stratified across passes).
     light_sampling: "area" (default) or "solid_angle" (rectangular lights sampled uniformly in solid angle).
+    light_tracing: caustics seen directly from light paths (see ``Renderer``; default off).
     callback(pass_index, PassSum) runs after each pass. stats, if given, receives seconds, compile_seconds,
     samples, discarded, spp, threads, device, roulette_warning (None, or why the seed roulette rule has an
     infinite variance on this scene).
@@ -334,7 +391,8 @@ def render(
     spp = _check_int("spp", spp, 1)
     seed = scene.sampler_seed if seed is None else seed
     r = Renderer(scene, device=device, max_depth=max_depth, light_samples=light_samples, rr=rr,
-                 view=view, threads=threads, sampler=sampler, light_sampling=light_sampling)
+                 view=view, threads=threads, sampler=sampler, light_sampling=light_sampling,
+                 light_tracing=light_tracing)
     roulette_warning = roulette_variance_warning(scene, r.rr, r.max_depth)
     if roulette_warning:  # detected and reported before any time is spent, never silently averaged
         warnings.warn(f"{scene.source}: {roulette_warning}", RuntimeWarning, stacklevel=2)

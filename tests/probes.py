@@ -10,6 +10,7 @@ import numpy as np
 import warp as wp
 
 from kernels.camera import camera_ray
+from kernels.light_tracer import camera_importance
 from kernels.integrator import light_sample_scale, self_mode
 from kernels.mesh import mesh_hit, smooth_normal, sphere_hit
 from kernels.triangle import mesh_closest, mesh_occluded, ray_shear, ray_triangle
@@ -57,6 +58,17 @@ def probe_sampling(
     # Lambertian estimator weight f cos / pdf with pdf = cos / pi: should be exactly the albedo
     c = wp.dot(n, wi)
     weight[i] = (albedo / wp.pi) * c / (c / wp.pi)
+
+
+@wp.kernel(enable_backward=False)
+def probe_camera_importance(
+    cam: CameraData,
+    p: wp.array(dtype=wp.vec3),
+    ng: wp.array(dtype=wp.vec3),
+    out: wp.array(dtype=wp.vec4),
+):
+    i = wp.tid()
+    out[i] = camera_importance(cam, p[i], ng[i])
 
 
 @wp.kernel(enable_backward=False)

@@ -296,9 +296,9 @@ def render_batches(renderer, spp: int, seeds: Iterable[int] = range(B)):
     means, variances = [], []
     for s in seeds:
         ps = renderer.render_passes(seed=int(s), first_pass=0, count=spp)
-        m = ps.sum / ps.passes
-        means.append(m)
-        variances.append(np.maximum(ps.sum_sq / ps.passes - m * m, 0.0) * ps.passes / (ps.passes - 1))
+        total = ps.sum if ps.lt_sum is None else ps.sum + ps.lt_sum  # with light tracing, both parts
+        means.append(total / ps.passes)
+        variances.append(ps.variance_of_mean * ps.passes)  # per-sample variance, summed over the two estimators
     means, variances = np.array(means), np.array(variances)
     assert np.isfinite(means).all() and len(means) >= 16
     return means, variances

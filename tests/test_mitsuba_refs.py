@@ -31,22 +31,30 @@ SPP = 128  # per batch
 T_MAX = stats.t_isf2(stats.normal_sf2(4.0), B - 1)  # |t| with the two-sided p-value of |z| = 4: about 5.6
 
 
-def batch_stats(scene, device, max_depth, spp=SPP, seeds=range(B)):
-    r = pathtracer.Renderer(scene, device=device, max_depth=max_depth)
+def batch_stats(scene, device, max_depth, spp=SPP, seeds=range(B), light_tracing=False):
+    r = pathtracer.Renderer(scene, device=device, max_depth=max_depth, light_tracing=light_tracing)
     imgs = np.stack([r.render_passes(seed=s, count=spp).mean.astype(np.float64) for s in seeds])
     return imgs.mean(axis=0), imgs.var(axis=0, ddof=1) / len(imgs), imgs
 
 
+LIGHT_TRACED = [n for n in sorted(META["refs"]) if not n.endswith("_d2") and n != "cornell_box"]  # have mirrors
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("name", sorted(META["refs"]))
-def test_agrees_with_mitsuba_reference(device, name):
+@pytest.mark.parametrize("name,light_tracing", [(n, False) for n in sorted(META["refs"])]
+                         + [(n, True) for n in LIGHT_TRACED],
+                         ids=[n for n in sorted(META["refs"])] + [f"{n}-light_tracing" for n in LIGHT_TRACED])
+def test_agrees_with_mitsuba_reference(device, name, light_tracing):
+    """With light tracing too on the scenes with mirrors: the caustics seen directly then come from light paths."""
     info = META["refs"][name]
     ref = pathtracer.read_image(REFS / f"{name}.exr").astype(np.float64)
     ref_var = pathtracer.read_image(REFS / f"{name}_var.exr").astype(np.float64)
     scene = pathtracer.load_file(Path(__file__).parents[1] / info["scene"], width=META["width"],
                                  height=META["height"])
     depth = info["max_depth"] if info["max_depth"] is not None else scene.integrator.max_depth
-    ours, var, imgs = batch_stats(scene, device, depth)
+    ours, var, imgs = batch_stats(scene, device, depth, light_tracing=light_tracing)
+    if light_tracing:
+        name = f"{name} (light tracing)"
 
     var_sum = var + ref_var
     diff = ours - ref
@@ -55,7 +63,7 @@ def test_agrees_with_mitsuba_reference(device, name):
     assert np.all(np.abs(diff[~noisy]) <= 1e-5 * (1 + np.abs(ref[~noisy]))), name
     t = diff[noisy] / np.sqrt(var_sum[noisy])
     pass_rate = float(np.mean(np.abs(t) <= T_MAX))
-    heavy_tailed = scene.has_mirror and (depth == -1 or depth > 2)
+    heavy_tailed = scene.has_mirror and (depth == -1 or depth > 2)  # light tracing or not: the reference's are
 
     denom = ref * ref + 0.01
     rel_mse = float(np.mean(diff**2 / denom))

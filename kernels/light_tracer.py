@@ -1,0 +1,200 @@
+"""Light tracing for caustics seen directly: light -> one or more mirrors -> a diffuse point -> the camera.
+
+A path tracer finds these paths only when a diffuse bounce happens to reflect off the mirrors into the light (the
+bright speckles on the ceiling of the mirror scenes); a light path finds them whenever it leaves the light towards a
+mirror. The two estimators split path space instead of weighting each other: with light tracing on, the integrator
+leaves out emission reached from the camera's first hit (if diffuse) through mirrors alone (``lt_owned`` in
+kernels/integrator.py), and this kernel estimates exactly those paths. Every other path stays the integrator's.
+
+One light path per thread (``n_paths`` per pass):
+- a light chosen uniformly, a point uniform on it, a direction cosine-distributed about its normal: the path
+  carries beta = Le |A| pi n_lights (emitted radiance over the density of what was sampled);
+- mirrors reflect it as the integrator does (same sidedness rules, weight = reflectance), at most max_depth - 2 of
+  them (the camera segment and the diffuse bounce are the other two), with roulette after ``rr_depth`` mirrors
+  when the depth is unlimited;
+- a light path whose first hit is diffuse is dropped (next-event estimation covers it); at the first diffuse point x
+  after a mirror, the path is connected to the pinhole and adds to the pixel it projects to
+
+      beta (rho / pi) (ns . wi) / |ng . wi| |ng . wc| / (d^2 cos^3(theta_c) A_pixel) / n_paths
+
+  with wi towards the mirror it came from, wc towards the camera at distance d, theta_c the angle to the optical axis
+  and A_pixel a pixel's area on the film plane at distance 1 (the image is the average radiance over each pixel,
+  box filter). (ns . wi) / |ng . wi| turns the particle's flux measure (geometric cosine) into the integrator's
+  shading cosine; the sidedness tests are the adjoint of the integrator's.
+Splats go to one buffer per pass (atomic adds), folded into sums and sums of squares so that the pass-to-pass spread
+of the light-traced part enters the error estimate like the path-traced part's.
+"""
+
+import warp as wp
+
+from kernels.integrator import Features, light_sample_scale, make_tracers
+from kernels.offset import offset_origin
+from kernels.rng import rand4
+from kernels.sampling import reflect, sample_cosine_around, sample_parallelogram
+from kernels.types import CameraData, PassParams, SceneData
+
+LIGHT_DIM0 = wp.constant(wp.uint32(0x40000000))  # random dimensions of light paths: apart from the camera paths'
+
+
+@wp.func
+def camera_importance(cam: CameraData, p: wp.vec3, ng: wp.vec3) -> wp.vec4:
+    """(pixel index as float, importance factor |ng . wc| / (d^2 cos^3 theta_c A_pixel), -1 on a miss, and the
+    distance to the near plane along the ray). Pixel -1 when p is outside the view or the clip range."""
+    to_p = p - cam.origin
+    d2 = wp.dot(to_p, to_p)
+    miss = wp.vec4(-1.0, 0.0, 0.0, 0.0)
+    if d2 <= 0.0:
+        return miss
+    dist = wp.sqrt(d2)
+    w = to_p / dist
+    local = wp.inverse(cam.to_world) * w
+    lz = wp.length(local)
+    if lz <= 0.0:
+        return miss
+    local = local / lz
+    if local[2] <= 0.0:
+        return miss
+    depth = dist * local[2]
+    if depth < cam.near_clip or depth > cam.far_clip:
+        return miss
+    fx = 0.5 * (1.0 - local[0] / (local[2] * cam.tan_x))
+    fy = 0.5 * (1.0 - local[1] / (local[2] * cam.tan_y))
+    if not (fx >= 0.0 and fx < 1.0 and fy >= 0.0 and fy < 1.0):
+        return miss
+    col = wp.min(int(fx * float(cam.width)), cam.width - 1)
+    row = wp.min(int(fy * float(cam.height)), cam.height - 1)
+    a_pixel = 4.0 * cam.tan_x * cam.tan_y / float(cam.width * cam.height)
+    cos_c = local[2]
+    factor = wp.abs(wp.dot(ng, w)) / (d2 * cos_c * cos_c * cos_c * a_pixel)
+    return wp.vec4(float(row * cam.width + col), factor, cam.near_clip / cos_c, 0.0)
+
+
+@wp.kernel(enable_backward=False)
+def fold_pass(splat: wp.array(dtype=wp.vec3d), lt_sum: wp.array(dtype=wp.vec3d), lt_sum_sq: wp.array(dtype=wp.vec3d)):
+    """Add one pass's splats to the sums (and squares) and clear the buffer for the next pass."""
+    i = wp.tid()
+    v = splat[i]
+    lt_sum[i] = lt_sum[i] + v
+    lt_sum_sq[i] = lt_sum_sq[i] + wp.cw_mul(v, v)
+    splat[i] = wp.vec3d(0.0)
+
+
+def make_light_kernel(features: Features):
+    """The light-tracing kernel for a scene with ``features`` (mirrors and lights)."""
+    trace, occluded = make_tracers(features)
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def light_pass(
+        scene: SceneData,
+        cam: CameraData,
+        params: PassParams,
+        n_paths: int,
+        # outputs
+        splat: wp.array(dtype=wp.vec3d),
+        discarded: wp.array(dtype=wp.int32),
+    ):
+        tid = wp.tid()
+        key = wp.vec3ui(wp.uint32(tid), params.pass_index, params.seed)
+        dim = LIGHT_DIM0
+
+        # ---------------- a point on a light, a direction out of it ----------------
+        u = rand4(key, dim)
+        dim += wp.uint32(1)
+        l = wp.min(int(u[0] * float(scene.num_lights)), scene.num_lights - 1)
+        ln = scene.light_normal[l]
+        y = sample_parallelogram(scene.light_center[l], scene.light_half_u[l], scene.light_half_v[l], u[1], u[2])
+        u = rand4(key, dim)
+        dim += wp.uint32(1)
+        d = sample_cosine_around(ln, u[0], u[1])
+        beta = scene.light_radiance[l] * (scene.light_area[l] * wp.pi * float(scene.num_lights))
+        o = offset_origin(y, ln, light_sample_scale(scene, l), d)
+        origin_quad = int(-1)
+        if wp.static(features.quads):
+            origin_quad = scene.light_quad[l]
+        origin_sphere = int(-1)
+        origin_normal = wp.vec3(0.0)
+        mirrors = int(0)
+        refl = wp.vec3(1.0)  # the mirrors' product (over the roulette's survival): what roulette keys on
+        max_mirrors = params.max_depth - 2  # camera segment + diffuse bounce + the mirrors <= max_depth
+
+        while True:
+            hit = trace(scene, o, d, 3.0e38, origin_quad, origin_sphere, origin_normal)
+            if hit.material < 0:
+                return
+            mat = hit.material
+            front = wp.dot(d, hit.ng) < 0.0
+            if not front and scene.mat_twosided[mat] == 0:
+                return  # one-sided: black from behind
+            ng = hit.ng
+            ns = hit.ns
+            if not front:
+                ng = -ng
+                ns = -ns
+            if scene.mat_kind[mat] != 1:
+                break  # diffuse: connect it to the camera below
+            # ---------------- mirror ----------------
+            if params.max_depth >= 0 and mirrors >= max_mirrors:
+                return
+            if wp.dot(ns, d) >= 0.0:
+                return
+            wi = reflect(d, ns)
+            if wp.dot(wi, ng) <= 0.0:
+                return
+            refl = wp.cw_mul(refl, scene.mat_rgb[mat])
+            beta = wp.cw_mul(beta, scene.mat_rgb[mat])
+            mirrors += 1
+            if params.max_depth < 0 and mirrors >= params.rr_depth:
+                q_rr = wp.min(wp.max(refl[0], wp.max(refl[1], refl[2])), 0.95)
+                u = rand4(key, dim)
+                dim += wp.uint32(1)
+                if u[0] >= q_rr:
+                    return
+                beta = beta / q_rr
+                refl = refl / q_rr
+            o = offset_origin(hit.p, ng, hit.scale, wi)
+            d = wi
+            origin_quad = hit.quad
+            origin_sphere = hit.sphere
+            origin_normal = hit.ng
+
+        if mirrors == 0:
+            return  # light -> diffuse directly: next-event estimation's share
+
+        # ---------------- the diffuse point seen by the camera ----------------
+        wi = -d  # towards the mirror the light came from
+        if wp.dot(ng, wi) <= 0.0 or wp.dot(ns, wi) <= 0.0:
+            return
+        imp = camera_importance(cam, hit.p, hit.ng)
+        if imp[0] < 0.0:
+            return
+        wc = wp.normalize(cam.origin - hit.p)
+        # the camera must be on the side the light arrived on (the integrator's one-sided and shading tests)
+        if wp.dot(ng, wc) <= 0.0 or wp.dot(ns, wc) <= 0.0:
+            return
+        so = offset_origin(hit.p, ng, hit.scale, wc)
+        end = cam.origin - wc * imp[2]  # the near plane: what lies closer to the pinhole is clipped away
+        seg = end - so
+        seg_len = wp.length(seg)
+        if seg_len <= 0.0:
+            return
+        if occluded(scene, so, seg / seg_len, seg_len, hit.quad, -1, hit.sphere, hit.ng):
+            return
+        albedo = scene.mat_rgb[mat]
+        value = wp.cw_mul(beta, albedo) * (wp.dot(ns, wi) / wp.abs(wp.dot(hit.ng, wi)) * imp[1]
+                                           / (wp.pi * float(n_paths)))
+        if wp.isfinite(value):
+            wp.atomic_add(splat, int(imp[0]), wp.vec3d(value))
+        else:
+            wp.atomic_add(discarded, 0, 1)
+
+    return light_pass
+
+
+_KERNELS: dict[Features, object] = {}
+
+
+def light_kernel(features: Features):
+    """The light-tracing kernel for ``features``, built once per process."""
+    if features not in _KERNELS:
+        _KERNELS[features] = make_light_kernel(features)
+    return _KERNELS[features]
