@@ -87,8 +87,8 @@ def configs(quick: bool, have_mitsuba: bool, samplers: list[str]) -> list[Config
 
 
 TIME_REPS = 3  # each rung is timed this many times (the same seed: the same image), the median is reported
-THREAD_SPP = 128
-THREAD_REPS = 7
+THREAD_SPP = 64
+THREAD_REPS = 15
 
 
 def thread_scaling(scene_name: str, w: int, h: int, spp: int = THREAD_SPP, reps: int = THREAD_REPS
@@ -257,7 +257,8 @@ def markdown(rows: list[Row], refs: dict, args, wall: float, compiles=None, scal
              f"Machine: {machine()}. Command: `python examples/bench.py {' '.join(sys.argv[1:])}` "
              f"({wall / 60:.1f} min). Image {args.width}x{args.height}, the scene files' max_depth and rr_depth.",
              f"Seconds: the median of {TIME_REPS} runs of each rung, excluding compilation and JIT warm-up. relMSE = mean((I - R)^2 / (R^2 + 0.01)); "
-             "efficiency = 1 / (relMSE x seconds); time to 1e-3 = seconds x relMSE / 1e-3 at the last rung.", ""]
+             "efficiency = 1 / (relMSE x seconds); time to 1e-3 = seconds x relMSE / 1e-3 at the last rung. "
+             "\"lt\": light tracing on (where the scene has mirrors; M rays/s then counts camera paths only).", ""]
     if compiles:
         lines += ["## Compile and start-up", "",
                   "| scene | cold compile (s) | cached load (s) | warm process: import + load + upload (s) |",

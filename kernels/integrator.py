@@ -12,10 +12,13 @@ Light samples are uniform in area (weight Le cos_x cos_y / d^2 * area / K), or, 
 "solid_angle", uniform in the solid angle a rectangular light subtends (kernels/sphrect.py; weight
 Le cos_x Omega / K), which removes the cos_y / d^2 variance near a light; non-rectangular parallelograms and points
 where the solid angle is tiny fall back to area sampling.
+With ``light_tracing``, paths camera -> diffuse first hit -> one or more mirrors -> light are left to the light
+tracer (kernels/light_tracer.py): their emission is not counted here (``lt_owned``).
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import warp as wp
@@ -367,11 +370,7 @@ def make_render_kernel(features: Features):
     return render_pass
 
 
-_KERNELS: dict[Features, object] = {}
-
-
+@functools.cache
 def render_kernel(features: Features):
     """The kernel for ``features``, built once per process (Warp's disk cache makes later processes fast)."""
-    if features not in _KERNELS:
-        _KERNELS[features] = make_render_kernel(features)
-    return _KERNELS[features]
+    return make_render_kernel(features)

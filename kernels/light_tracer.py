@@ -25,6 +25,8 @@ Splats go to one buffer per pass (atomic adds), folded into sums and sums of squ
 of the light-traced part enters the error estimate like the path-traced part's.
 """
 
+import functools
+
 import warp as wp
 
 from kernels.integrator import Features, light_sample_scale, make_tracers
@@ -190,11 +192,7 @@ def make_light_kernel(features: Features):
     return light_pass
 
 
-_KERNELS: dict[Features, object] = {}
-
-
+@functools.cache
 def light_kernel(features: Features):
     """The light-tracing kernel for ``features``, built once per process."""
-    if features not in _KERNELS:
-        _KERNELS[features] = make_light_kernel(features)
-    return _KERNELS[features]
+    return make_light_kernel(features)
