@@ -87,7 +87,7 @@ def configs(quick: bool, have_mitsuba: bool, samplers: list[str]) -> list[Config
 
 
 TIME_REPS = 3  # each rung is timed this many times (the same seed: the same image), the median is reported
-THREAD_SPP = 64
+THREAD_SPP = 128
 THREAD_REPS = 15
 
 
