@@ -38,37 +38,47 @@ from kernels.types import CameraData, PassParams, SceneData
 LIGHT_DIM0 = wp.constant(wp.uint32(0x40000000))  # random dimensions of light paths: apart from the camera paths'
 
 
+@wp.struct
+class FilmPoint:
+    pixel: int  # -1: outside the view or the clip range
+    weight: float  # |ng . wc| / (d^2 cos^3 theta_c A_pixel)
+    near: float  # distance from the pinhole to the near plane along the ray to the point
+
+
 @wp.func
-def camera_importance(cam: CameraData, p: wp.vec3, ng: wp.vec3) -> wp.vec4:
-    """(pixel index as float, importance factor |ng . wc| / (d^2 cos^3 theta_c A_pixel), -1 on a miss, and the
-    distance to the near plane along the ray). Pixel -1 when p is outside the view or the clip range."""
+def camera_importance(cam: CameraData, p: wp.vec3, ng: wp.vec3) -> FilmPoint:
+    """Where point ``p`` (geometric normal ``ng``) lands on the film, and the film-area Jacobian that turns a
+    particle's flux there into the pixel's average radiance."""
+    r = FilmPoint()
+    r.pixel = -1
     to_p = p - cam.origin
     d2 = wp.dot(to_p, to_p)
-    miss = wp.vec4(-1.0, 0.0, 0.0, 0.0)
     if d2 <= 0.0:
-        return miss
+        return r
     dist = wp.sqrt(d2)
     w = to_p / dist
-    local = wp.inverse(cam.to_world) * w
+    local = cam.to_local * w
     lz = wp.length(local)
     if lz <= 0.0:
-        return miss
+        return r
     local = local / lz
     if local[2] <= 0.0:
-        return miss
+        return r
     depth = dist * local[2]
     if depth < cam.near_clip or depth > cam.far_clip:
-        return miss
+        return r
     fx = 0.5 * (1.0 - local[0] / (local[2] * cam.tan_x))
     fy = 0.5 * (1.0 - local[1] / (local[2] * cam.tan_y))
     if not (fx >= 0.0 and fx < 1.0 and fy >= 0.0 and fy < 1.0):
-        return miss
+        return r
     col = wp.min(int(fx * float(cam.width)), cam.width - 1)
     row = wp.min(int(fy * float(cam.height)), cam.height - 1)
     a_pixel = 4.0 * cam.tan_x * cam.tan_y / float(cam.width * cam.height)
     cos_c = local[2]
-    factor = wp.abs(wp.dot(ng, w)) / (d2 * cos_c * cos_c * cos_c * a_pixel)
-    return wp.vec4(float(row * cam.width + col), factor, cam.near_clip / cos_c, 0.0)
+    r.pixel = row * cam.width + col
+    r.weight = wp.abs(wp.dot(ng, w)) / (d2 * cos_c * cos_c * cos_c * a_pixel)
+    r.near = cam.near_clip / cos_c
+    return r
 
 
 @wp.kernel(enable_backward=False)
@@ -167,14 +177,14 @@ def make_light_kernel(features: Features):
         if wp.dot(ng, wi) <= 0.0 or wp.dot(ns, wi) <= 0.0:
             return
         imp = camera_importance(cam, hit.p, hit.ng)
-        if imp[0] < 0.0:
+        if imp.pixel < 0:
             return
         wc = wp.normalize(cam.origin - hit.p)
         # the camera must be on the side the light arrived on (the integrator's one-sided and shading tests)
         if wp.dot(ng, wc) <= 0.0 or wp.dot(ns, wc) <= 0.0:
             return
         so = offset_origin(hit.p, ng, hit.scale, wc)
-        end = cam.origin - wc * imp[2]  # the near plane: what lies closer to the pinhole is clipped away
+        end = cam.origin - wc * imp.near  # the near plane: what lies closer to the pinhole is clipped away
         seg = end - so
         seg_len = wp.length(seg)
         if seg_len <= 0.0:
@@ -182,10 +192,10 @@ def make_light_kernel(features: Features):
         if occluded(scene, so, seg / seg_len, seg_len, hit.quad, -1, hit.sphere, hit.ng):
             return
         albedo = scene.mat_rgb[mat]
-        value = wp.cw_mul(beta, albedo) * (wp.dot(ns, wi) / wp.abs(wp.dot(hit.ng, wi)) * imp[1]
+        value = wp.cw_mul(beta, albedo) * (wp.dot(ns, wi) / wp.abs(wp.dot(hit.ng, wi)) * imp.weight
                                            / (wp.pi * float(n_paths)))
         if wp.isfinite(value):
-            wp.atomic_add(splat, int(imp[0]), wp.vec3d(value))
+            wp.atomic_add(splat, imp.pixel, wp.vec3d(value))
         else:
             wp.atomic_add(discarded, 0, 1)
 

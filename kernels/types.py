@@ -9,6 +9,7 @@ class CameraData:
 
     origin: wp.vec3
     to_world: wp.mat33  # local -> world, linear part of the sensor's to_world
+    to_local: wp.mat33  # its inverse (world -> local directions), for projecting points onto the film
     tan_x: float  # tan(half fov) along image x
     tan_y: float
     near_clip: float

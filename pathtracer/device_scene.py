@@ -269,6 +269,7 @@ def camera_data(scene: Scene) -> CameraData:
     m = np.asarray(cam.to_world, dtype=np.float64)
     c.origin = wp.vec3(*m[:3, 3].astype(np.float32))
     c.to_world = wp.mat33(*m[:3, :3].astype(np.float32).reshape(-1))
+    c.to_local = wp.mat33(*np.linalg.inv(m[:3, :3]).astype(np.float32).reshape(-1))
     c.tan_x, c.tan_y = (float(t) for t in cam.tan_half_fov(scene.width, scene.height))
     c.near_clip = float(cam.near_clip)
     c.far_clip = float(cam.far_clip)
