@@ -2,8 +2,8 @@
 
 ``make_render_kernel(features)`` returns a kernel specialised at compile time (``wp.static``) on which primitives,
 materials, view and roulette rule the scene uses; ``module="unique"`` gives each variant its own small module so a
-new variant never rebuilds another. The kernel adds one sample per pixel, for one pass over a set of rows, into the
-accumulators.
+new variant never rebuilds another. ``Li`` traces one camera path; the kernel adds one sample per pixel and pass, for a
+run of consecutive passes over a tile (a set of rows), into the accumulators.
 
 Estimator (equal in expectation to Mitsuba's ``path`` integrator, which adds MIS):
 emission is counted on camera rays and after mirror bounces; at diffuse hits next-event estimation takes K uniform
@@ -73,6 +73,12 @@ class Features:
     light_sampling: int = LIGHT_AREA
     count_rays: bool = False  # instrumented variant for benchmarks: counts closest-hit and shadow rays
     light_tracing: bool = False  # caustics seen directly are left to the light tracer (kernels/light_tracer.py)
+
+
+@wp.struct
+class PathSample:
+    L: wp.vec3  # radiance along one camera path
+    rays: wp.int64  # rays it traced (counted only in the instrumented variant)
 
 
 @wp.func
@@ -175,24 +181,10 @@ def make_render_kernel(features: Features):
 
     trace, occluded = make_tracers(features)
 
-    @wp.kernel(enable_backward=False, module="unique")
-    def render_pass(
-        scene: SceneData,
-        cam: CameraData,
-        params: PassParams,
-        # outputs
-        accum: wp.array(dtype=wp.vec3d),
-        accum_sq: wp.array(dtype=wp.vec3d),
-        discarded: wp.array(dtype=wp.int32),
-        ray_count: wp.array(dtype=wp.int64),
-    ):
-        tid = wp.tid()
-        col = tid % cam.width
-        row = params.row_offset + (tid // cam.width) * params.row_stride
-        if row >= cam.height:
-            return
-        pixel = row * cam.width + col
-        key = wp.vec3ui(wp.uint32(pixel), params.pass_index, params.seed)
+    @wp.func
+    def Li(scene: SceneData, cam: CameraData, params: PassParams, col: int, row: int, pass_index: wp.uint32) -> PathSample:
+        """One camera path through pixel (col, row) for pass ``pass_index``: the radiance it carries."""
+        key = wp.vec3ui(wp.uint32(row * cam.width + col), pass_index, params.seed)
 
         # ---------------- camera ray ----------------
         jitter = wp.static(draw4)(key, wp.uint32(0))
@@ -355,15 +347,49 @@ def make_render_kernel(features: Features):
                 origin_quad = hit.quad
                 origin_normal = hit.ng
 
-        # ---------------- film ----------------
-        # float64 sums: finite float32 samples can never overflow them, nor lose small ones to rounding
-        if wp.isfinite(L):
-            L64 = wp.vec3d(L)
-            accum[pixel] = accum[pixel] + L64
-            accum_sq[pixel] = accum_sq[pixel] + wp.cw_mul(L64, L64)
-        else:
-            # one counter per worker: Warp's CPU atomics are plain adds, so concurrent workers must not share one
-            wp.atomic_add(discarded, params.row_offset, 1)
+        out = PathSample()
+        out.L = L
+        out.rays = rays
+        return out
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def render_pass(
+        scene: SceneData,
+        cam: CameraData,
+        params: PassParams,
+        # outputs
+        accum: wp.array(dtype=wp.vec3d),
+        accum_sq: wp.array(dtype=wp.vec3d),
+        discarded: wp.array(dtype=wp.int32),
+        ray_count: wp.array(dtype=wp.int64),
+    ):
+        tid = wp.tid()
+        col = tid % cam.width
+        row = params.row_offset + (tid // cam.width) * params.row_stride
+        if row >= cam.height:
+            return
+        pixel = row * cam.width + col
+        # The launch's passes are added in pass order to sums held in registers: the same float64 additions, in
+        # the same order, as one launch per pass, so the image does not depend on how passes are grouped.
+        # float64 sums: finite float32 samples can never overflow them, nor lose small ones to rounding.
+        total = accum[pixel]
+        total_sq = accum_sq[pixel]
+        bad = int(0)
+        rays = wp.int64(0)
+        for k in range(params.pass_count):
+            sample = Li(scene, cam, params, col, row, params.pass_index + wp.uint32(k))
+            if wp.isfinite(sample.L):
+                L64 = wp.vec3d(sample.L)
+                total = total + L64
+                total_sq = total_sq + wp.cw_mul(L64, L64)
+            else:
+                bad += 1  # dropped and counted, never averaged into the image
+            rays += sample.rays
+        accum[pixel] = total
+        accum_sq[pixel] = total_sq
+        # one counter per tile: Warp's CPU atomics are plain adds, and a tile is never rendered by two workers at once
+        if bad > 0:
+            wp.atomic_add(discarded, params.row_offset, bad)
         if wp.static(COUNT_RAYS):
             wp.atomic_add(ray_count, params.row_offset, rays)
 

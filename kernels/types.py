@@ -61,10 +61,12 @@ class SceneData:
 
 @wp.struct
 class PassParams:
-    """One sample pass over a set of image rows (rows row_offset, row_offset + row_stride, ...)."""
+    """Sample passes pass_index .. pass_index + pass_count - 1 over a set of image rows (a tile: rows row_offset,
+    row_offset + row_stride, ...)."""
 
     seed: wp.uint32
     pass_index: wp.uint32
+    pass_count: int
     row_offset: int
     row_stride: int
     max_depth: int  # -1: unlimited

@@ -2,13 +2,15 @@
 
 Pass ``i`` of seed ``s`` adds one sample to every pixel, drawn from random numbers keyed by (pixel, i, s), so any
 set of passes can be rendered anywhere (another thread, process or machine) and merged by adding ``PassSum``s.
-On the CPU, worker threads launch the same pass on interleaved rows (``wp.launch`` releases the GIL); every pixel
-is owned by one thread and sums its passes in pass order, so the image is bit-identical whatever the thread count.
+On the CPU, worker threads (``wp.launch`` releases the GIL) take (tile, run of passes) items on demand, a tile being
+a set of interleaved rows; a tile's runs are rendered in order, one at a time, so every pixel sums its passes in pass
+order and the image is bit-identical whatever the thread count.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import os
 import threading
 import time
@@ -35,6 +37,9 @@ DEFAULT_SAMPLER = "independent"
 DEFAULT_LIGHT_SAMPLING = "area"
 DEFAULT_LIGHT_TRACING = False
 UINT32_LIMIT = 2**32
+TILES_PER_THREAD = 4  # row sets per CPU thread, taken on demand (load balancing)
+LAUNCH_SAMPLES = 1 << 15  # samples one launch aims at (~10-20 ms on a CPU core), by grouping passes
+MAX_PASSES_PER_LAUNCH = 16
 
 
 @dataclass
@@ -209,52 +214,61 @@ class Renderer:
             raise RenderError("pass indices must stay below 2^32")
         s = self.scene
         npix = s.width * s.height
+        tiles = self._tiles()
+        # passes per launch: enough work per launch (about LAUNCH_SAMPLES samples) to hide its ~50 us overhead;
+        # one with a callback, which runs after every pass
+        per_launch = 1 if callback is not None else max(1, min(MAX_PASSES_PER_LAUNCH, LAUNCH_SAMPLES * tiles // npix))
+        chunks = [(p, min(per_launch, first_pass + count - p)) for p in range(first_pass, first_pass + count, per_launch)]
         with wp.ScopedDevice(self.device):
             accum = wp.zeros(npix, dtype=wp.vec3d)
             accum_sq = wp.zeros(npix, dtype=wp.vec3d)
-            discarded = wp.zeros(self.threads, dtype=wp.int32)  # one counter per worker thread
-            rays = wp.zeros(self.threads, dtype=wp.int64)
+            discarded = wp.zeros(tiles, dtype=wp.int32)  # one counter per tile
+            rays = wp.zeros(tiles, dtype=wp.int64)
             lt = None
             if self.light_kernel is not None:
                 lt = {k: wp.zeros(npix, dtype=wp.vec3d) for k in ("splat", "sum", "sum_sq")}
                 lt["discarded"] = wp.zeros(1, dtype=wp.int32)
-        rows_of = [len(range(w, s.height, self.threads)) for w in range(self.threads)]
+        rows_of = [len(range(t, s.height, tiles)) for t in range(tiles)]
         it = s.integrator
 
-        def params(worker: int, pass_index: int) -> PassParams:
+        def params(tile: int, pass_index: int, pass_count: int = 1) -> PassParams:
             p = PassParams()
             p.seed = wp.uint32(seed)
             p.pass_index = wp.uint32(pass_index)
-            p.row_offset = worker
-            p.row_stride = self.threads
+            p.pass_count = pass_count
+            p.row_offset = tile
+            p.row_stride = tiles
             p.max_depth = self.max_depth
             p.rr_depth = it.rr_depth
             p.light_samples = self.light_samples
             p.hide_emitters = int(it.hide_emitters)
             return p
 
-        # one recorded launch per worker: later passes only swap the pass parameters (cheaper than wp.launch)
-        cmds = [wp.launch(self.kernel, dim=rows_of[w] * s.width,
-                          inputs=[self.dscene.data, self.dscene.camera, params(w, first_pass)],
+        # one recorded launch per tile: later launches only swap the pass parameters (cheaper than wp.launch)
+        cmds = [wp.launch(self.kernel, dim=rows_of[t] * s.width,
+                          inputs=[self.dscene.data, self.dscene.camera, params(t, first_pass)],
                           outputs=[accum, accum_sq, discarded, rays], device=self.device, record_cmd=True)
-                for w in range(self.threads)]
+                for t in range(tiles)]
 
-        workers = self.threads
+        def launch(tile: int, first: int, n: int):
+            cmds[tile].set_param_by_name("params", params(tile, first, n))
+            cmds[tile].launch()
+
+        launch_lt = None
         if lt is not None:
-            # one more worker, for the light paths: pass after pass into its own sums, so the image does not depend
-            # on the thread count either
-            cmds.append(wp.launch(self.light_kernel, dim=npix,
-                                  inputs=[self.dscene.data, self.dscene.camera, params(0, first_pass), npix],
-                                  outputs=[lt["splat"], lt["discarded"]], device=self.device, record_cmd=True))
+            # the light paths of a pass splat into one buffer, folded into their own sums pass after pass, in pass
+            # order, so the image does not depend on the thread count either
+            lt_cmd = wp.launch(self.light_kernel, dim=npix,
+                               inputs=[self.dscene.data, self.dscene.camera, params(0, first_pass), npix],
+                               outputs=[lt["splat"], lt["discarded"]], device=self.device, record_cmd=True)
             fold = wp.launch(fold_pass, dim=npix, inputs=[lt["splat"], lt["sum"], lt["sum_sq"]],
                              device=self.device, record_cmd=True)
-            workers += 1
 
-        def launch(worker: int, pass_index: int):
-            cmds[worker].set_param_by_name("params", params(min(worker, self.threads - 1), pass_index))
-            cmds[worker].launch()
-            if worker == self.threads:
-                fold.launch()
+            def launch_lt(first: int, n: int):
+                for pass_index in range(first, first + n):
+                    lt_cmd.set_param_by_name("params", params(0, pass_index))
+                    lt_cmd.launch()
+                    fold.launch()
 
         bar = None
         if progress:
@@ -264,32 +278,41 @@ class Renderer:
         done = 0
         t0 = time.perf_counter()
         pool = self._worker_pool()
-        passes = range(first_pass, first_pass + count)
         try:
             if pool is not None and callback is None:
-                # Free-running workers: each owns its rows and runs every pass in order, with no barrier
-                # between passes (a barrier costs the slower worker's lead every pass).
-                done = self._run_free(pool, launch, passes, bar, workers)
+                done = self._run_free(pool, launch, launch_lt, chunks, tiles, bar)
             else:
-                for pass_index in passes:
+                for first, n in chunks:
                     if pool is None:
-                        for w in range(workers):
-                            launch(w, pass_index)
+                        for t in range(tiles):
+                            launch(t, first, n)
+                        if launch_lt is not None:
+                            launch_lt(first, n)
                     else:
-                        for f in [pool.submit(launch, w, pass_index) for w in range(workers)]:
+                        futures = [pool.submit(launch, t, first, n) for t in range(tiles)]
+                        if launch_lt is not None:
+                            futures.append(pool.submit(launch_lt, first, n))
+                        for f in futures:
                             f.result()
-                    done += 1
+                    done += n
                     if bar is not None:
-                        bar.update(1)
+                        bar.update(n)
                     if callback is not None:
                         wp.synchronize_device(self.device)
-                        if callback(pass_index, self._sums(accum, accum_sq, discarded, rays, done, t0, lt)) is False:
+                        if callback(first + n - 1, self._sums(accum, accum_sq, discarded, rays, done, t0, lt)) is False:
                             break
             wp.synchronize_device(self.device)
         finally:
             if bar is not None:
                 bar.close()
         return self._sums(accum, accum_sq, discarded, rays, done, t0, lt)
+
+    def _tiles(self) -> int:
+        """Row sets the image is split into: one per thread would leave a core idle whenever the other thread runs
+        slower (measured 10-25% apart on this project's shared 2-core VM), so several per thread, taken on demand."""
+        if self.threads == 1:
+            return 1
+        return min(self.scene.height, TILES_PER_THREAD * self.threads)
 
     def _worker_pool(self) -> ThreadPoolExecutor | None:
         """The renderer's worker threads, started once and reused by every call (None with one thread)."""
@@ -312,33 +335,74 @@ class Renderer:
         except Exception:
             pass
 
-    def _run_free(self, pool: ThreadPoolExecutor, launch, passes: range, bar, workers: int) -> int:
-        """Every worker renders all ``passes`` on its rows; returns the number of passes done (all of them)."""
-        lock = threading.Lock()
-        completed = [0] * workers
+    def _run_free(self, pool: ThreadPoolExecutor, launch, launch_lt, chunks: list[tuple[int, int]], tiles: int,
+                  bar) -> int:
+        """Render every (chunk of passes, tile) with the pool's threads, taken on demand in chunk-major order (a
+        faster thread takes more of them), with no barrier between chunks; the light paths, if any, on a thread
+        of their own. A tile's chunks run in order, one at a time, so every pixel sums its passes in pass order.
+        Returns the number of passes done (all of them)."""
+        items = len(chunks) * tiles
+        taken = itertools.count()  # next(count) is atomic under the GIL
+        cond = threading.Condition()
+        next_chunk = [0] * tiles  # per tile: the chunk it may run next
+        lt_done = [0]
         shown = [0]
-        stop = threading.Event()
+        failed = threading.Event()
 
-        def worker(w: int):
-            for pass_index in passes:
-                if stop.is_set():
+        def report():  # under cond
+            if bar is None:
+                return
+            low = min(next_chunk)
+            if launch_lt is not None:
+                low = min(low, lt_done[0])
+            passes = sum(n for _, n in chunks[:low])
+            if passes > shown[0]:
+                bar.update(passes - shown[0])
+                shown[0] = passes
+
+        def path_worker():
+            try:
+                while not failed.is_set():
+                    i = next(taken)
+                    if i >= items:
+                        return
+                    c, tile = divmod(i, tiles)
+                    with cond:  # its previous chunk was taken `tiles` items ago: almost always done by now
+                        cond.wait_for(lambda: next_chunk[tile] == c or failed.is_set())
+                    if failed.is_set():
+                        return
+                    launch(tile, *chunks[c])
+                    with cond:
+                        next_chunk[tile] = c + 1
+                        cond.notify_all()
+                        report()
+            except BaseException:
+                with cond:
+                    failed.set()
+                    cond.notify_all()
+                raise
+
+        def lt_worker():
+            for k, (first, n) in enumerate(chunks):
+                if failed.is_set():
                     return
-                launch(w, pass_index)
-                with lock:
-                    completed[w] += 1
-                    low = min(completed)
-                    if bar is not None and low > shown[0]:
-                        bar.update(low - shown[0])
-                    shown[0] = low
+                launch_lt(first, n)
+                with cond:
+                    lt_done[0] = k + 1
+                    report()
 
-        futures = [pool.submit(worker, w) for w in range(workers)]
+        futures = [pool.submit(path_worker) for _ in range(self.threads)]
+        if launch_lt is not None:
+            futures.append(pool.submit(lt_worker))
         try:
             for f in futures:
                 f.result()
         except BaseException:
-            stop.set()  # interrupted: workers stop after their current launch
+            with cond:
+                failed.set()  # interrupted: workers stop after their current launch
+                cond.notify_all()
             raise
-        return len(passes)
+        return sum(n for _, n in chunks)
 
     def _sums(self, accum, accum_sq, discarded, rays, done: int, t0: float, lt=None) -> PassSum:
         s = self.scene

@@ -66,6 +66,62 @@ def test_thread_count_does_not_change_the_image():
         assert np.array_equal(imgs[0], img)
 
 
+def test_sums_do_not_depend_on_threads_tiles_or_passes_per_launch():
+    """37 passes: several launches of up to 16 passes with a short last one, 1 to 8 tiles, and one pass per launch
+    with a callback: every pixel must add the same float64 samples in the same order (bit-identical sums)."""
+    scene = box_scene()
+    runs = []
+    for threads in (1, 2, 5):
+        r = pathtracer.Renderer(scene, device="cpu", threads=threads)
+        runs.append(r.render_passes(seed=4, first_pass=3, count=37))
+        runs.append(r.render_passes(seed=4, first_pass=3, count=37, callback=lambda i, s: True))
+        r.close()
+    for other in runs[1:]:
+        assert other.passes == 37
+        assert np.array_equal(runs[0].sum, other.sum) and np.array_equal(runs[0].sum_sq, other.sum_sq)
+
+
+def test_work_scheduler_runs_each_tile_in_order_and_balances():
+    """The free-running scheduler: every (chunk, tile) exactly once, a tile's chunks in order and never two at once,
+    and a thread that is slowed down takes fewer items (the other takes up the slack)."""
+    import threading
+    import time
+
+    scene = box_scene()
+    r = pathtracer.Renderer(scene, device="cpu", threads=2)
+    chunks = [(p, 2) for p in range(0, 20, 2)]
+    tiles = 6
+    lock = threading.Lock()
+    log = []  # (tile, first, thread, start, end)
+    running = set()
+    slow = []
+
+    def fake_launch(tile, first, n):
+        me = threading.get_ident()
+        with lock:
+            assert tile not in running, "a tile rendered by two threads at once"
+            running.add(tile)
+            if not slow:
+                slow.append(me)  # the first thread to start is the slow one
+        t = time.perf_counter()
+        time.sleep(0.004 if me == slow[0] else 0.001)
+        with lock:
+            running.discard(tile)
+            log.append((tile, first, me, t, time.perf_counter()))
+
+    done = r._run_free(r._worker_pool(), fake_launch, None, chunks, tiles, None)
+    r.close()
+    assert done == 20
+    assert sorted((t, f) for t, f, *_ in log) == sorted((t, f) for t in range(tiles) for f, _ in chunks)
+    for t in range(tiles):
+        starts = [(start, f) for tt, f, _, start, _ in log if tt == t]
+        assert [f for _, f in sorted(starts)] == [f for f, _ in chunks]
+    counts = {}
+    for _, _, me, _, _ in log:
+        counts[me] = counts.get(me, 0) + 1
+    assert len(counts) == 2 and counts[slow[0]] < counts[next(k for k in counts if k != slow[0])] / 2
+
+
 def test_different_seeds_differ(device):
     scene = box_scene()
     a = render(scene, spp=2, seed=0, device=device)
