@@ -29,7 +29,7 @@ from kernels.triangle import mesh_closest, mesh_occluded
 from kernels.offset import max_abs, offset_origin
 from kernels.quad import nearest_quad, occluded_quads, quad_hit
 from kernels.rng import rand4
-from kernels.sobol import sobol4
+from kernels.sobol import padded_sobol4
 from kernels.sampling import reflect, sample_cosine_around, sample_parallelogram
 from kernels.sphrect import sample_spherical_rectangle
 from kernels.sphere import SELF_FAR, SELF_NONE, SELF_SKIP, ray_sphere
@@ -176,7 +176,7 @@ def make_render_kernel(features: Features):
     RR = features.rr
     COUNT_RAYS = features.count_rays
     SOLID_ANGLE = features.light_sampling == LIGHT_SOLID_ANGLE
-    draw4 = sobol4 if features.sampler == SAMPLER_SOBOL else rand4  # picked at compile time
+    draw4 = padded_sobol4 if features.sampler == SAMPLER_SOBOL else rand4  # picked at compile time
     LIGHT_TRACING = features.light_tracing
 
     trace, occluded = make_tracers(features)

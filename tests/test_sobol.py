@@ -15,8 +15,8 @@ import warp as wp
 
 from helpers import chi2_stat, chi2_upper
 from kernels.rng import rand4
-from kernels.sobol import (laine_karras_permutation, nested_uniform_scramble, reverse_bits, sobol,
-                           sobol4, sobol_dim1)
+from kernels.sobol import (SOBOL_DIMS, laine_karras_permutation, nested_uniform_scramble, padded_sobol4,
+                           reverse_bits, sobol, sobol4, sobol_dim1)
 
 # ------------------------------------------------------------------------------------------------
 # reference data
@@ -110,7 +110,9 @@ def probe_sobol_bits(xs: wp.array(dtype=wp.uint32), seeds: wp.array(dtype=wp.uin
 def probe_sample(keys: wp.array(dtype=wp.vec3ui), dims: wp.array(dtype=wp.uint32), use_sobol: int,
                  out: wp.array(dtype=wp.vec4)):
     i = wp.tid()
-    if use_sobol != 0:
+    if use_sobol == 2:
+        out[i] = padded_sobol4(keys[i], dims[i])
+    elif use_sobol != 0:
         out[i] = sobol4(keys[i], dims[i])
     else:
         out[i] = rand4(keys[i], dims[i])
@@ -398,3 +400,15 @@ def test_sobol_sampler_renders_unbiased_and_deterministic():
     assert errors["sobol"] < 0.5 * errors["independent"], errors
     r = pathtracer.Renderer(scene, device="cpu", max_depth=2, sampler="sobol")
     np.testing.assert_array_equal(r.render_passes(seed=3, count=8).sum, r.render_passes(seed=3, count=8).sum)
+
+
+def test_padded_sobol_is_sobol_below_its_dims_and_independent_after(device):
+    """The integrator's "sobol" sampler: Sobol' points for the first SOBOL_DIMS dims (camera jitter, first light
+    sample and bounce, second light sample), rand4 beyond, where stratification buys little and costs ~3x."""
+    n_dims = int(SOBOL_DIMS.value)
+    assert 2 <= n_dims <= 8
+    keys = _keys(np.arange(5), np.arange(16), 3)
+    for d in range(n_dims + 3):
+        padded = _sample(device, keys, d, use_sobol=2)
+        want = _sample(device, keys, d, use_sobol=1 if d < n_dims else 0)
+        assert np.array_equal(padded, want), f"dim {d}"
