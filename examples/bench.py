@@ -234,7 +234,13 @@ def machine() -> str:
         pass
     import warp as wp
 
-    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, warp {wp.__version__}"
+    simd = ""
+    try:
+        flags = next(line for line in open("/proc/cpuinfo") if line.startswith("flags")).split()
+        simd = ", " + ("AVX-512" if "avx512f" in flags else "AVX2 (no AVX-512)" if "avx2" in flags else "no AVX2")
+    except (OSError, StopIteration):
+        pass
+    return f"{cpu}{simd}, {os.cpu_count()} cores, Python {platform.python_version()}, warp {wp.__version__}"
 
 
 def plot(rows: list[Row], path: Path) -> None:
@@ -246,10 +252,14 @@ def plot(rows: list[Row], path: Path) -> None:
     scenes = sorted({r.scene for r in rows}, key=SCENES.index)
     fig, axes = plt.subplots(1, len(scenes), figsize=(5 * len(scenes), 4.2), squeeze=False)
     for ax, s in zip(axes[0], scenes):
-        for label in dict.fromkeys(r.config for r in rows if r.scene == s):
+        colours = plt.get_cmap("tab20").colors  # 13 configurations: the default 10-colour cycle repeats
+        for k, label in enumerate(dict.fromkeys(r.config for r in rows if r.scene == s)):
             pts = [(r.seconds, r.relmse) for r in rows if r.scene == s and r.config == label]
             xs, ys = zip(*pts)
-            ax.loglog(xs, ys, "o-" if "mitsuba" not in label else "s--", label=label, ms=3)
+            if "mitsuba" in label:
+                ax.loglog(xs, ys, "s--", color="black", lw=2, label=label, ms=4)
+            else:
+                ax.loglog(xs, ys, "o-", color=colours[(2 * k) % 20 + (k >= 10)], label=label, ms=3)
         ax.axhline(TARGET, color="gray", lw=0.8, ls=":")
         ax.set_title(s)
         ax.set_xlabel("seconds")

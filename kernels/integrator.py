@@ -28,8 +28,7 @@ from kernels.mesh import mesh_hit, smooth_normal, sphere_hit
 from kernels.triangle import mesh_closest, mesh_occluded
 from kernels.offset import max_abs, offset_origin
 from kernels.quad import nearest_quad, occluded_quads, quad_hit
-from kernels.rng import rand4
-from kernels.sobol import padded_sobol4
+from kernels.sobol import independent4, padded_sobol4
 from kernels.sampling import reflect, sample_cosine_around, sample_parallelogram
 from kernels.sphrect import sample_spherical_rectangle
 from kernels.sphere import SELF_FAR, SELF_NONE, SELF_SKIP, ray_sphere
@@ -46,7 +45,8 @@ RR_THROUGHPUT = 2  # Mitsuba's: from rr_depth on, continue with probability min(
 RR_RULES = {"none": RR_NONE, "seed": RR_SEED, "throughput": RR_THROUGHPUT}
 
 SAMPLER_INDEPENDENT = 0  # pcg4d hash of (pixel, pass, seed, dim): independent uniforms
-SAMPLER_SOBOL = 1  # Owen-scrambled, shuffled Sobol' points indexed by pass: stratified across passes
+SAMPLER_SOBOL = 1  # Owen-scrambled, shuffled Sobol' points indexed by pass (stratified across passes) at the first
+# two path vertices, independent deeper (kernels/sobol.py: padded_sobol4)
 SAMPLERS = {"independent": SAMPLER_INDEPENDENT, "sobol": SAMPLER_SOBOL}
 
 LIGHT_AREA = 0  # next-event samples uniform in the light's area
@@ -176,7 +176,7 @@ def make_render_kernel(features: Features):
     RR = features.rr
     COUNT_RAYS = features.count_rays
     SOLID_ANGLE = features.light_sampling == LIGHT_SOLID_ANGLE
-    draw4 = padded_sobol4 if features.sampler == SAMPLER_SOBOL else rand4  # picked at compile time
+    draw4 = padded_sobol4 if features.sampler == SAMPLER_SOBOL else independent4  # picked at compile time
     LIGHT_TRACING = features.light_tracing
 
     trace, occluded = make_tracers(features)
@@ -187,7 +187,7 @@ def make_render_kernel(features: Features):
         key = wp.vec3ui(wp.uint32(row * cam.width + col), pass_index, params.seed)
 
         # ---------------- camera ray ----------------
-        jitter = wp.static(draw4)(key, wp.uint32(0))
+        jitter = wp.static(draw4)(key, wp.uint32(0), 0)
         ray = camera_ray(cam, col, row, jitter[0], jitter[1])
         o = ray.o
         d = ray.d
@@ -263,7 +263,7 @@ def make_render_kernel(features: Features):
                             l_scale = light_sample_scale(scene, l)
                             Ll = float(0.0)
                             for k in range(params.light_samples):
-                                u = wp.static(draw4)(key, dim)
+                                u = wp.static(draw4)(key, dim, depth)
                                 dim += wp.uint32(1)
                                 y = wp.vec3(0.0)
                                 omega = float(0.0)  # > 0: y is uniform in the light's solid angle
@@ -308,7 +308,7 @@ def make_render_kernel(features: Features):
                         L += wp.cw_mul(wp.cw_mul(beta, albedo), Ld) * (1.0 / wp.pi)
 
                     # ---------------- diffuse: cosine-weighted bounce ----------------
-                    u = wp.static(draw4)(key, dim)
+                    u = wp.static(draw4)(key, dim, depth)
                     dim += wp.uint32(1)
                     wi = sample_cosine_around(ns, u[0], u[1])
                     count_emission = False
@@ -323,7 +323,7 @@ def make_render_kernel(features: Features):
                 # ---------------- Russian roulette ----------------
                 if wp.static(RR == RR_SEED):
                     if depth >= 2:
-                        u = wp.static(draw4)(key, dim)
+                        u = wp.static(draw4)(key, dim, depth)
                         dim += wp.uint32(1)
                         if u[0] < SEED_RR_LAMBDA:
                             break
@@ -331,7 +331,7 @@ def make_render_kernel(features: Features):
                 if wp.static(RR == RR_THROUGHPUT):
                     if depth >= params.rr_depth:
                         q_rr = wp.min(wp.max(beta[0], wp.max(beta[1], beta[2])), 0.95)
-                        u = wp.static(draw4)(key, dim)
+                        u = wp.static(draw4)(key, dim, depth)
                         dim += wp.uint32(1)
                         if u[0] >= q_rr:
                             break

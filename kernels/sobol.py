@@ -199,16 +199,24 @@ def sobol4(key: wp.vec3ui, dim: wp.uint32) -> wp.vec4:
     )
 
 
-# Sample dimensions drawn from Sobol' points; later ones from rand4 (Burley's padding with independent points).
-# Dims 0-3 are the camera jitter, the first light sample and bounce, and the second light sample (K = 1, one light):
-# where stratification pays. Deeper dims carry little variance and Sobol' draws cost ~3x an independent one.
-SOBOL_DIMS = wp.constant(wp.uint32(4))
+
+# Path vertices whose sample dimensions come from Sobol' points; deeper ones use rand4 (Burley's padding with
+# independent points). Vertices 0 and 1 (the camera jitter, and the light samples and bounce at the first two hits)
+# are where stratification pays; deeper dims carry little variance and a Sobol' draw costs ~3x an independent one.
+# (By depth, not by dimension index: a dimension cut-off would hand the first bounce to rand4 whenever K >= 3.)
+SOBOL_DEPTH = wp.constant(2)
 
 
 @wp.func
-def padded_sobol4(key: wp.vec3ui, dim: wp.uint32) -> wp.vec4:
-    """``sobol4`` for dims below SOBOL_DIMS, ``rand4`` after: each dim stays an independently randomised
-    uniform point, so estimators stay unbiased exactly as with either."""
-    if dim < SOBOL_DIMS:
+def padded_sobol4(key: wp.vec3ui, dim: wp.uint32, depth: int) -> wp.vec4:
+    """``sobol4`` for draws at path vertices below SOBOL_DEPTH, ``rand4`` deeper: each dim stays an independently
+    randomised uniform point, so estimators stay unbiased exactly as with either."""
+    if depth < SOBOL_DEPTH:
         return sobol4(key, dim)
+    return rand4(key, dim)
+
+
+@wp.func
+def independent4(key: wp.vec3ui, dim: wp.uint32, depth: int) -> wp.vec4:
+    """``rand4`` with ``padded_sobol4``'s signature (the integrator picks one of the two at compile time)."""
     return rand4(key, dim)
