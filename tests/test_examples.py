@@ -46,3 +46,31 @@ def test_compare_mitsuba_tiny(tmp_path):
     assert np.isfinite(result["relmse"]) and result["noise_floor"] > 0
     # both unbiased: the difference is what the noise explains (a loose bound: 64 spp, 432 pixels)
     assert result["ratio"] < 1.5, result
+
+
+def test_bench_tiny(tmp_path):
+    """The speed-against-error bench end to end, tiny and without Mitsuba: the report and its plot are written."""
+    pytest.importorskip("matplotlib")
+    run_example("examples/bench.py", "--scenes", "cornell_box", "--ladder", "1", "2", "--configs", "K=1", "K=1 sobol",
+                "--no-mitsuba", "--no-threads", "--no-compile", "--width", "16", "--height", "12", "--ref-spp", "64",
+                "--ref-dir", str(tmp_path / "refs"), "--out", str(tmp_path))
+    report = (tmp_path / "performance.md").read_text()
+    assert "| K=1 | 2 |" in report and "| K=1 sobol | 2 |" in report and "Reference: ours 64 spp" in report
+    assert (tmp_path / "performance.png").stat().st_size > 1000
+    rows = json.loads((tmp_path / "performance.json").read_text())
+    assert len(rows) == 4 and all(r["relmse"] > 0 and r["seconds"] > 0 for r in rows)
+
+
+def test_bench_reads_time_to_error_off_the_ladder():
+    sys.path.insert(0, str(ROOT / "examples"))
+    from bench import Row, crossing_time
+
+    def ladder(points):
+        return [Row("s", "c", spp, t, e, 1.0) for spp, (t, e) in zip((4, 16, 64), points)]
+
+    # relMSE falls 10x per 4x time (faster than 1/t, as Sobol' does): 1e-3 lies between the rungs, log-log
+    t, how = crossing_time(ladder([(1.0, 1e-1), (4.0, 1e-2), (16.0, 1e-4)]), 1e-3)
+    assert how == "interpolated" and abs(t - 8.0) < 1e-9
+    # not reached: extrapolated from the last rung at rate 1/t
+    t, how = crossing_time(ladder([(1.0, 1e-1), (4.0, 2.5e-2), (16.0, 6.25e-3)]), 1e-3)
+    assert how == "extrapolated" and abs(t - 100.0) < 1e-9
