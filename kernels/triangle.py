@@ -1,4 +1,4 @@
-"""Watertight ray-triangle hits through a ``wp.Bvh`` over padded triangle boxes.
+"""Watertight ray-triangle hits through a box tree (pathtracer/bvh.py) over padded triangle boxes.
 
 Warp's ``mesh_query_ray`` has a watertight triangle test but a slab test with no rounding slack, so a ray through a
 vertex that lies on a node box's face can skip the leaf that holds the hit (Warp 1.19: 99 of 34594 rays aimed at
@@ -111,32 +111,136 @@ def face_triangle_hit(scene: SceneData, f: int, o: wp.vec3, r: RayShear, tmax: f
                         scene.points[scene.indices[3 * f + 2]], tmax)
 
 
+STACK_SIZE = 64  # the heap's depth bounds the stack: 2^64 leaves would be needed to fill it
+StackInt = wp.types.vector(length=STACK_SIZE, dtype=wp.int32)
+StackFloat = wp.types.vector(length=STACK_SIZE, dtype=wp.float32)
+
+
+@wp.func
+def box_entry(scene: SceneData, node: int, o: wp.vec3, inv_d: wp.vec3, tmax: float) -> float:
+    """Where the ray enters node ``node``'s box (0 if it starts inside), or -1 if it misses it within [0, tmax).
+    The same float32 slab test as Warp's BVH query (the box padding is sized for its rounding)."""
+    lo = scene.bvh_lower[node]
+    hi = scene.bvh_upper[node]
+    l1 = (lo[0] - o[0]) * inv_d[0]
+    l2 = (hi[0] - o[0]) * inv_d[0]
+    lmin = wp.min(l1, l2)
+    lmax = wp.max(l1, l2)
+    l1 = (lo[1] - o[1]) * inv_d[1]
+    l2 = (hi[1] - o[1]) * inv_d[1]
+    lmin = wp.max(wp.min(l1, l2), lmin)
+    lmax = wp.min(wp.max(l1, l2), lmax)
+    l1 = (lo[2] - o[2]) * inv_d[2]
+    l2 = (hi[2] - o[2]) * inv_d[2]
+    lmin = wp.max(wp.min(l1, l2), lmin)
+    lmax = wp.min(wp.max(l1, l2), lmax)
+    if lmax >= 0.0 and lmax >= lmin and lmin < tmax:
+        return wp.max(lmin, 0.0)
+    return -1.0
+
+
 @wp.func
 def mesh_closest(scene: SceneData, o: wp.vec3, d: wp.vec3, tmax: float) -> TriHit:
-    """The nearest triangle hit in 0 <= t < tmax (unit d); ``face`` -1 if none."""
+    """The nearest triangle hit in 0 <= t < tmax (unit d); ``face`` -1 if none.
+
+    Nearest-first traversal of the box tree (pathtracer/bvh.py): of a node's two children the nearer is entered
+    first and the farther pushed with its entry distance, which is skipped when popped beyond the nearest hit so far.
+    """
     r = ray_shear(d)
+    inv_d = wp.vec3(1.0 / r.box_dir[0], 1.0 / r.box_dir[1], 1.0 / r.box_dir[2])
     best = TriHit()
     best.face = -1
     best.t = tmax
-    query = wp.bvh_query_ray(scene.bvh, o, r.box_dir)
-    f = int(0)
-    while wp.bvh_query_next(query, f, best.t):  # the shrinking limit prunes boxes beyond the nearest hit so far
-        h = face_triangle_hit(scene, f, o, r, best.t)
-        if h[0] >= 0.0:
-            best.face = f
-            best.t = h[0]
-            best.u = h[1]
-            best.v = h[2]
+    if box_entry(scene, 0, o, inv_d, tmax) < 0.0:
+        return best
+    stack_node = StackInt()
+    stack_t = StackFloat()
+    sp = int(0)
+    node = int(0)
+    while True:
+        count = scene.bvh_count[node]
+        descend = bool(False)
+        if count > 0:
+            first = scene.bvh_start[node]
+            for k in range(count):
+                f = scene.bvh_prims[first + k]
+                h = face_triangle_hit(scene, f, o, r, best.t)
+                if h[0] >= 0.0:
+                    best.face = f
+                    best.t = h[0]
+                    best.u = h[1]
+                    best.v = h[2]
+        else:
+            a = scene.bvh_start[node]  # an inner node's children: bvh_start, bvh_start + 1
+            b = a + 1
+            ta = box_entry(scene, a, o, inv_d, best.t)
+            tb = box_entry(scene, b, o, inv_d, best.t)
+            if ta >= 0.0 and tb >= 0.0:
+                if tb < ta:
+                    tmp = a
+                    a = b
+                    b = tmp
+                    tt = ta
+                    ta = tb
+                    tb = tt
+                stack_node[sp] = b
+                stack_t[sp] = tb
+                sp += 1
+                node = a
+                descend = True
+            elif ta >= 0.0:
+                node = a
+                descend = True
+            elif tb >= 0.0:
+                node = b
+                descend = True
+        if not descend:
+            # pop the next subtree that still starts before the nearest hit
+            while sp > 0 and not descend:
+                sp -= 1
+                if stack_t[sp] < best.t:
+                    node = stack_node[sp]
+                    descend = True
+            if not descend:
+                break
     return best
 
 
 @wp.func
 def mesh_occluded(scene: SceneData, o: wp.vec3, d: wp.vec3, tmax: float) -> bool:
-    """Any triangle hit in 0 <= t < tmax (unit d)?"""
+    """Any triangle hit in 0 <= t < tmax (unit d)? (Any hit ends the search, so no ordering.)"""
     r = ray_shear(d)
-    query = wp.bvh_query_ray(scene.bvh, o, r.box_dir)
-    f = int(0)
-    while wp.bvh_query_next(query, f, tmax):
-        if face_triangle_hit(scene, f, o, r, tmax)[0] >= 0.0:
-            return True
+    inv_d = wp.vec3(1.0 / r.box_dir[0], 1.0 / r.box_dir[1], 1.0 / r.box_dir[2])
+    if box_entry(scene, 0, o, inv_d, tmax) < 0.0:
+        return False
+    stack_node = StackInt()
+    sp = int(0)
+    node = int(0)
+    while True:
+        count = scene.bvh_count[node]
+        if count > 0:
+            first = scene.bvh_start[node]
+            for k in range(count):
+                if face_triangle_hit(scene, scene.bvh_prims[first + k], o, r, tmax)[0] >= 0.0:
+                    return True
+        else:
+            a = scene.bvh_start[node]  # an inner node's children: bvh_start, bvh_start + 1
+            b = a + 1
+            hit_a = box_entry(scene, a, o, inv_d, tmax) >= 0.0
+            hit_b = box_entry(scene, b, o, inv_d, tmax) >= 0.0
+            if hit_a and hit_b:
+                stack_node[sp] = b
+                sp += 1
+                node = a
+                continue
+            if hit_a:
+                node = a
+                continue
+            if hit_b:
+                node = b
+                continue
+        if sp == 0:
+            break
+        sp -= 1
+        node = stack_node[sp]
     return False

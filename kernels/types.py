@@ -22,7 +22,12 @@ class CameraData:
 class SceneData:
     """Every primitive of a scene. Arrays of absent kinds are empty (their code is compiled out)."""
 
-    bvh: wp.uint64  # one wp.Bvh over every triangle's padded box (kernels/triangle.py)
+    # box tree over every triangle's padded box (pathtracer/bvh.py; traversed in kernels/triangle.py)
+    bvh_lower: wp.array(dtype=wp.vec3)
+    bvh_upper: wp.array(dtype=wp.vec3)
+    bvh_start: wp.array(dtype=wp.int32)  # a leaf's first entry in bvh_prims, an inner node's first child
+    bvh_count: wp.array(dtype=wp.int32)  # a leaf's triangle count, 0 for inner nodes
+    bvh_prims: wp.array(dtype=wp.int32)  # face indices, leaf by leaf
     points: wp.array(dtype=wp.vec3)
     indices: wp.array(dtype=wp.int32)  # 3 per face
     face_material: wp.array(dtype=wp.int32)

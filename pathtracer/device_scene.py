@@ -1,5 +1,5 @@
-"""Uploads a ``Scene`` to one Warp device: rectangles and cubes as analytic quads, one ``wp.Bvh`` over every
-other triangle, and flat arrays for the rest."""
+"""Uploads a ``Scene`` to one Warp device: rectangles and cubes as analytic quads, one box tree
+(``pathtracer.bvh``) over every other triangle, and flat arrays for the rest."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import warp as wp
 
 from kernels.integrator import LIGHT_SAMPLINGS, RR_RULES, SAMPLERS, VIEWS, Features
 from kernels.types import CameraData, SceneData
+from pathtracer.bvh import BoxTree, build_box_tree
 from pathtracer.scene import MIRROR, Scene, TriangleMesh
 
 
@@ -48,14 +49,12 @@ def triangle_box_pad(points: np.ndarray, camera_origin) -> float:
     return 2.0**-18 * r
 
 
-def _triangle_bvh(points: np.ndarray, faces: np.ndarray, pad: float, device):
-    """A ``wp.Bvh`` over the faces' float32 boxes grown by ``pad`` (rounded outward): (bvh, lowers, uppers)."""
+def _triangle_tree(points: np.ndarray, faces: np.ndarray, pad: float) -> BoxTree:
+    """The box tree over the faces' float32 boxes grown by ``pad`` (rounded outward)."""
     tri = points.astype(np.float32)[faces].astype(np.float64)
     lo = np.nextafter((tri.min(axis=1) - pad).astype(np.float32), np.float32(-np.inf))
     hi = np.nextafter((tri.max(axis=1) + pad).astype(np.float32), np.float32(np.inf))
-    lowers = wp.array(lo, dtype=wp.vec3, device=device)
-    uppers = wp.array(hi, dtype=wp.vec3, device=device)
-    return wp.Bvh(lowers, uppers), lowers, uppers
+    return build_box_tree(lo, hi)
 
 
 QUAD_SHAPES = ("rectangle", "cube")
@@ -188,11 +187,16 @@ class DeviceScene:
         d = SceneData()
         self.points = _vec3(points, device)
         self.indices = _arr(faces, wp.int32, device)
-        self.bvh = None
+        self.tree = None
         if len(faces):
             self.box_pad = triangle_box_pad(points, np.asarray(scene.camera.to_world)[:3, 3])
-            self.bvh, self._lowers, self._uppers = _triangle_bvh(np.asarray(points), faces, self.box_pad, device)
-        d.bvh = self.bvh.id if self.bvh is not None else wp.uint64(0)
+            self.tree = _triangle_tree(np.asarray(points), faces, self.box_pad)
+        t = self.tree
+        d.bvh_lower = _vec3(t.lower if t else np.zeros((0, 3)), device)
+        d.bvh_upper = _vec3(t.upper if t else np.zeros((0, 3)), device)
+        d.bvh_start = _arr(t.start if t else [], wp.int32, device)
+        d.bvh_count = _arr(t.count if t else [], wp.int32, device)
+        d.bvh_prims = _arr(t.prims if t else [], wp.int32, device)
         d.points = self.points
         d.indices = self.indices
         d.face_material = _arr(face_material, wp.int32, device)

@@ -1,0 +1,121 @@
+"""A bounding volume hierarchy over boxes, built with numpy for ``kernels/bvh.py``'s nearest-first traversal.
+
+Why our own: Warp 1.19's ``wp.Bvh`` ray query visits a node's two children in a fixed order, so a closest-hit query
+keeps descending into far subtrees until a hit shrinks its limit; on the mirror teapot that traversal was 60% of the
+render time. Here the traversal tests both children and descends into the nearer one first.
+
+Every inner node sorts its range of primitives along the longest axis of its box centres and cuts it where the
+surface area heuristic is lowest (a sweep along that one axis), or at the middle for small ranges and deep levels;
+a level's sorts are one vectorised ``lexsort``, so a 70k-triangle mesh builds in about a second.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+LEAF_SIZE = 4  # at most this many primitives per leaf
+SAH_MIN = 16  # ranges at least this large split where the surface area heuristic says, smaller ones at the median
+SAH_LEVELS = 32  # below this depth, medians only: the tree stays shallower than the traversal's 64-entry stack
+
+
+@dataclass
+class BoxTree:
+    """Node arrays; node 0 is the root, an inner node's children are ``start`` and ``start + 1``."""
+
+    lower: np.ndarray  # (nodes, 3) float32
+    upper: np.ndarray  # (nodes, 3) float32
+    start: np.ndarray  # (nodes,) int32: a leaf's first entry in ``prims``; an inner node's first child
+    count: np.ndarray  # (nodes,) int32: a leaf's primitive count, 0 for inner nodes
+    prims: np.ndarray  # (n,) int32: primitive indices, leaf by leaf
+    depth: int  # the number of levels
+
+
+def _ranges(starts: np.ndarray, sizes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(element positions, segment of each) for the concatenated ranges [starts[k], starts[k] + sizes[k])."""
+    seg = np.repeat(np.arange(len(starts)), sizes)
+    offsets = np.cumsum(sizes) - sizes
+    return starts[seg] + np.arange(int(sizes.sum())) - offsets[seg], seg
+
+
+def _area(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    e = np.maximum(hi - lo, 0.0)
+    return e[..., 0] * e[..., 1] + e[..., 1] * e[..., 2] + e[..., 2] * e[..., 0]
+
+
+def _sah_split(lo: np.ndarray, hi: np.ndarray) -> int:
+    """Where to cut boxes sorted along one axis: the k minimising area(left) k + area(right) (m - k)."""
+    m = len(lo)
+    left = _area(np.minimum.accumulate(lo, axis=0), np.maximum.accumulate(hi, axis=0))[:-1]
+    right = _area(np.minimum.accumulate(lo[::-1], axis=0), np.maximum.accumulate(hi[::-1], axis=0))[::-1][1:]
+    k = np.arange(1, m)
+    return int(np.argmin(left * k + right * (m - k))) + 1
+
+
+def build_box_tree(lower: np.ndarray, upper: np.ndarray, leaf_size: int = LEAF_SIZE) -> BoxTree:
+    """Tree over the boxes [lower[i], upper[i]] (float32, already padded as the caller needs).
+
+    Level by level: every range is sorted along the longest axis of its box centres (one vectorised sort for the
+    whole level), then cut where the surface area heuristic is lowest (ranges of SAH_MIN or more, in the top
+    SAH_LEVELS levels) or at the middle."""
+    lower = np.asarray(lower, dtype=np.float32).reshape(-1, 3)
+    upper = np.asarray(upper, dtype=np.float32).reshape(-1, 3)
+    n = len(lower)
+    if n == 0:
+        raise ValueError("a box tree needs at least one box")
+    centre = 0.5 * (lower.astype(np.float64) + upper.astype(np.float64))
+    lo64, hi64 = lower.astype(np.float64), upper.astype(np.float64)
+    perm = np.arange(n)
+    levels = []  # per level: (node ids, starts, sizes, first child of each inner node)
+    ids, starts, sizes = np.array([0]), np.array([0]), np.array([n])
+    next_id = 1
+    while len(ids):
+        inner = sizes > leaf_size
+        children = np.full(len(ids), -1)
+        children[inner] = next_id + 2 * np.arange(int(inner.sum()))
+        levels.append((ids, starts, sizes, children))
+        if not inner.any():
+            break
+        ids_in, starts, sizes = children[inner], starts[inner], sizes[inner]
+        next_id += 2 * len(ids_in)
+        pos, seg = _ranges(starts, sizes)
+        c = centre[perm[pos]]
+        offsets = np.cumsum(sizes) - sizes
+        extent = np.maximum.reduceat(c, offsets, axis=0) - np.minimum.reduceat(c, offsets, axis=0)
+        axis = np.argmax(extent, axis=1)
+        key = c[np.arange(len(pos)), axis[seg]]
+        order = np.lexsort((key, seg))  # by range, then along its axis: ranges stay where they are
+        perm[pos] = perm[pos[order]]
+        cut = sizes // 2
+        if len(levels) <= SAH_LEVELS:
+            for j in np.nonzero(sizes >= SAH_MIN)[0]:
+                p = perm[starts[j]:starts[j] + sizes[j]]
+                cut[j] = _sah_split(lo64[p], hi64[p])
+        ids = np.stack([ids_in, ids_in + 1], axis=1).reshape(-1)
+        starts, sizes = (np.stack([starts, starts + cut], axis=1).reshape(-1),
+                         np.stack([cut, sizes - cut], axis=1).reshape(-1))
+    nodes = next_id
+    lo = np.full((nodes, 3), np.inf, dtype=np.float32)
+    hi = np.full((nodes, 3), -np.inf, dtype=np.float32)
+    start = np.zeros(nodes, dtype=np.int32)
+    count = np.zeros(nodes, dtype=np.int32)
+    plo, phi = lower[perm], upper[perm]
+    for lv_ids, lv_starts, lv_sizes, lv_children in reversed(levels):  # deepest first: children before parents
+        leaf = lv_children < 0
+        if leaf.any():
+            li, ls, lz = lv_ids[leaf], lv_starts[leaf], lv_sizes[leaf]
+            order = np.argsort(ls)  # reduceat wants increasing, non-overlapping ranges
+            li, ls, lz = li[order], ls[order], lz[order]
+            pos, _ = _ranges(ls, lz)
+            offsets = np.cumsum(lz) - lz
+            lo[li] = np.minimum.reduceat(plo[pos], offsets, axis=0)
+            hi[li] = np.maximum.reduceat(phi[pos], offsets, axis=0)
+            start[li] = ls
+            count[li] = lz
+        ii, cc = lv_ids[~leaf], lv_children[~leaf]
+        if len(ii):
+            lo[ii] = np.minimum(lo[cc], lo[cc + 1])
+            hi[ii] = np.maximum(hi[cc], hi[cc + 1])
+            start[ii] = cc
+    return BoxTree(lo, hi, start, count, perm.astype(np.int32), len(levels))

@@ -1,0 +1,87 @@
+"""pathtracer/bvh.py: the box tree the triangle traversal (kernels/triangle.py) walks.
+
+The traversal itself is tested through the integrator's probes (test_kernels: nearest hits against float64
+Moller-Trumbore; test_hard_cases: watertightness on the teapot, an icosphere and the bunny)."""
+
+import numpy as np
+import pytest
+
+from kernels.triangle import STACK_SIZE
+from pathtracer.bvh import build_box_tree
+
+
+def walk(tree, lower, upper):
+    """Every node reachable from the root exactly once, every box the union of what it holds; returns the depth."""
+    seen = np.zeros(len(tree.count), dtype=int)
+    stack = [(0, 1)]
+    deepest = 0
+    while stack:
+        i, depth = stack.pop()
+        seen[i] += 1
+        deepest = max(deepest, depth)
+        if tree.count[i]:
+            p = tree.prims[tree.start[i]:tree.start[i] + tree.count[i]]
+            assert np.array_equal(tree.lower[i], lower[p].min(axis=0))
+            assert np.array_equal(tree.upper[i], upper[p].max(axis=0))
+        else:
+            a = tree.start[i]
+            assert a > i  # children come after their parent: no cycles
+            assert np.array_equal(tree.lower[i], np.minimum(tree.lower[a], tree.lower[a + 1]))
+            assert np.array_equal(tree.upper[i], np.maximum(tree.upper[a], tree.upper[a + 1]))
+            stack += [(a, depth + 1), (a + 1, depth + 1)]
+    assert (seen == 1).all()
+    return deepest
+
+
+def boxes(kind, n, rng):
+    if kind == "uniform":
+        c = rng.random((n, 3))
+    elif kind == "identical":  # no axis to split along: the median must still split
+        c = np.zeros((n, 3))
+    elif kind == "geometric":  # exponentially spaced along a line: SAH would peel one box at a time
+        c = np.stack([2.0 ** -np.arange(n, dtype=np.float64) * 1e3, np.zeros(n), np.zeros(n)], axis=1)
+    else:  # a thin shell, like a mesh's surface
+        v = rng.normal(size=(n, 3))
+        c = v / np.linalg.norm(v, axis=1, keepdims=True)
+    lo = (c - 1e-3).astype(np.float32)
+    return lo, (c + 1e-3).astype(np.float32)
+
+
+@pytest.mark.parametrize("kind", ["uniform", "identical", "geometric", "shell"])
+@pytest.mark.parametrize("n", [1, 2, 4, 5, 17, 1000, 20000])
+def test_tree_holds_every_box_once_with_tight_bounds_and_fits_the_stack(kind, n):
+    lower, upper = boxes(kind, n, np.random.default_rng(n))
+    tree = build_box_tree(lower, upper)
+    assert np.array_equal(np.sort(tree.prims), np.arange(n))
+    assert tree.count.sum() == n and tree.count.max() <= 4
+    depth = walk(tree, lower, upper)
+    assert depth == tree.depth
+    # a closest-hit traversal pushes at most one node per level: the depth must stay below the stack size
+    assert depth < STACK_SIZE
+
+
+def test_tree_splits_where_the_area_is_smallest():
+    """Two clusters of very different size: SAH cuts between them (a median cut would split the big cluster)."""
+    rng = np.random.default_rng(1)
+    big = rng.random((30, 3)) * 10.0
+    small = 100.0 + rng.random((200, 3)) * 0.01
+    c = np.concatenate([big, small])
+    tree = build_box_tree((c - 1e-3).astype(np.float32), (c + 1e-3).astype(np.float32))
+    a = tree.start[0]
+    sizes = sorted(int(np.sum(tree.count[_subtree(tree, k)])) for k in (a, a + 1))
+    assert sizes == [30, 200]
+
+
+def _subtree(tree, root):
+    out, stack = [], [root]
+    while stack:
+        i = stack.pop()
+        out.append(i)
+        if not tree.count[i]:
+            stack += [tree.start[i], tree.start[i] + 1]
+    return np.array(out)
+
+
+def test_empty_input_is_an_error():
+    with pytest.raises(ValueError):
+        build_box_tree(np.zeros((0, 3)), np.zeros((0, 3)))
