@@ -2,9 +2,46 @@
 
 import warp as wp
 
-from kernels.offset import max_abs
+from kernels.offset import FLT_EPS, max_abs
 from kernels.triangle import TriHit
 from kernels.types import Hit, SceneData
+
+
+INSIDE_ULPS = wp.constant(8.0)  # how far inside its triangle a hit point is kept, in ulps of the coordinates
+
+
+@wp.func
+def inside_point(a: wp.vec3, b: wp.vec3, c: wp.vec3, u: float, v: float, scale: float) -> wp.vec3:
+    """The point with barycentrics (u, v, 1 - u - v), kept at least INSIDE_ULPS ulps of ``scale`` inside the
+    triangle's edges (the centroid for a triangle too small for that).
+
+    A hit at an edge computed in float32 can land an ulp beyond it, that is beyond the plane of the adjacent face:
+    the ray spawned there (offset along this face's normal only) then starts outside that face and, heading back
+    in, hits it from outside at t ~ 1e-12: a path leaked out of a closed cube this way (camera inside a cube of
+    half-size 1e-3, 1 pixel in 6144). Kept inside its own triangle, the point is on the inner side of every
+    adjacent face (for a convex or a concave edge alike), by more than the rounding of the sum below.
+    """
+    area2 = wp.length(wp.cross(b - a, c - a))
+    e = INSIDE_ULPS * FLT_EPS * scale
+    w = 1.0 - u - v
+    if area2 > 0.0:
+        # barycentric margins: the distance to the opposite edge is (weight) x (twice the area) / (edge length)
+        mu = e * wp.length(c - b) / area2
+        mv = e * wp.length(a - c) / area2
+        mw = e * wp.length(b - a) / area2
+        if mu + mv + mw < 0.5:
+            u = wp.max(u, mu)
+            v = wp.max(v, mv)
+            w = wp.max(w, mw)
+        else:
+            u = 1.0
+            v = 1.0
+            w = 1.0
+        total = u + v + w
+        u = u / total
+        v = v / total
+        w = w / total
+    return u * a + v * b + w * c
 
 
 @wp.func
@@ -22,10 +59,10 @@ def mesh_hit(scene: SceneData, o: wp.vec3, d: wp.vec3, q: TriHit) -> Hit:
     c = scene.points[i2]
     h = Hit()
     h.t = q.t
-    h.p = q.u * a + q.v * b + (1.0 - q.u - q.v) * c
+    h.scale = wp.max(max_abs(a), wp.max(max_abs(b), max_abs(c)))
+    h.p = inside_point(a, b, c, q.u, q.v, h.scale)
     h.ng = wp.normalize(wp.cross(b - a, c - a))
     h.ns = h.ng
-    h.scale = wp.max(max_abs(a), wp.max(max_abs(b), max_abs(c)))
     h.material = scene.face_material[q.face]
     h.light = scene.face_light[q.face]
     h.sphere = -1

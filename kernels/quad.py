@@ -13,8 +13,8 @@ tolerance that closes that gap grows every quad seen at a grazing angle by as mu
 (``err`` below) is ~1e-15 relative, so accepting a ray within it of an edge closes shared edges (box corners, cube
 edges) at a negligible growth. On the CPU the float64 loop measured as fast as a float32 one (scalar code either
 way; the division is skipped for planes outside the ray's range).
-The hit record clamps s, r and rebuilds the point from them, so it lies on the quad whatever the ray origin; a ray
-leaving a quad skips that quad (a plane cannot be hit again).
+The hit record clamps s, r (a few float32 ulps inside the edges) and rebuilds the point from them, so it lies on the
+quad whatever the ray origin; a ray leaving a quad skips that quad (a plane cannot be hit again).
 
 Speed: the quads of one shape (a cube's six faces) form a group with a float64 bounding box padded by 1e-9 of its
 size; a ray that misses the box skips the group. Testing quads is most of a ray's cost in the seed's boxes (the
@@ -23,6 +23,8 @@ Cornell box renders 1.6x faster without its cube), and most rays miss the block.
 
 import warp as wp
 
+from kernels.mesh import INSIDE_ULPS
+from kernels.offset import FLT_EPS
 from kernels.types import Hit, SceneData
 
 QUAD_TOL = wp.constant(wp.float64(16.0 * 2.220446049250313e-16))  # bound on the hit point's relative error, x4
@@ -70,14 +72,26 @@ def ray_quad(o: wp.vec3d, d: wp.vec3d, center: wp.vec3d, normal: wp.vec3d, ustar
 @wp.func
 def quad_hit(scene: SceneData, o: wp.vec3d, d: wp.vec3d, t: wp.float64, i: int) -> Hit:
     """Hit record on quad ``i`` at distance ``t`` (from ``ray_quad``): the point rebuilt from the clamped s, r."""
-    one = wp.float64(1.0)
     c = scene.quad_center[i]
+    hu = scene.quad_half_u[i]
+    hv = scene.quad_half_v[i]
     local = t * d - (c - o)
-    s = wp.clamp(wp.dot(local, scene.quad_ustar[i]), -one, one)
-    r = wp.clamp(wp.dot(local, scene.quad_vstar[i]), -one, one)
+    # Kept INSIDE_ULPS float32 ulps inside the edges (as triangle hits are, kernels/mesh.py: inside_point): the
+    # float32 point must not round beyond the plane of the adjacent face, or a ray spawned there starts outside it.
+    # (A cube of half-size 1e-4 around the camera leaked 32 pixels in 18432 without this.)
+    area = wp.length(wp.cross(hu, hv))
+    e = wp.float64(INSIDE_ULPS * FLT_EPS * scene.quad_scale[i])
+    lim_s = wp.float64(1.0) - e * wp.length(hv) / area
+    lim_r = wp.float64(1.0) - e * wp.length(hu) / area
+    s = wp.clamp(wp.dot(local, scene.quad_ustar[i]), -lim_s, lim_s)
+    r = wp.clamp(wp.dot(local, scene.quad_vstar[i]), -lim_r, lim_r)
+    if lim_s <= wp.float64(0.5):
+        s = wp.float64(0.0)
+    if lim_r <= wp.float64(0.5):
+        r = wp.float64(0.0)
     h = Hit()
     h.t = float(t)
-    h.p = wp.vec3(c + s * scene.quad_half_u[i] + r * scene.quad_half_v[i])
+    h.p = wp.vec3(c + s * hu + r * hv)
     h.ng = wp.vec3(scene.quad_normal[i])
     h.ns = h.ng
     h.scale = scene.quad_scale[i]

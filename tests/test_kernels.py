@@ -15,6 +15,8 @@ import warp as wp
 
 import probes
 from helpers import chi2_stat, chi2_upper, make_scene, material
+from kernels.mesh import inside_point
+from kernels.offset import max_abs
 from kernels.sphere import SELF_FAR, SELF_NONE, SELF_SKIP
 from pathtracer.device_scene import DeviceScene, camera_data
 from pathtracer.scene import Sphere, TriangleMesh
@@ -882,3 +884,62 @@ def test_shadow_rays_between_facing_quads_never_occluded(device, scale, shift):
                             probes.arr(uv, wp.vec2, device)], [wp.int32])
     assert (status == 0).mean() > 0.95
     assert (status == 1).sum() == 0, f"{(status == 1).sum()} shadow rays between visible points were blocked"
+
+
+@wp.kernel(enable_backward=False)
+def probe_inside_point(tri: wp.array(dtype=wp.vec3), uv: wp.array(dtype=wp.vec2), out: wp.array(dtype=wp.vec3)):
+    i = wp.tid()
+    a = tri[3 * i]
+    b = tri[3 * i + 1]
+    c = tri[3 * i + 2]
+    scale = wp.max(max_abs(a), wp.max(max_abs(b), max_abs(c)))
+    out[i] = inside_point(a, b, c, uv[i][0], uv[i][1], scale)
+
+
+def test_inside_point_keeps_edge_hits_inside_their_triangle(device):
+    """Hits on an edge or at a vertex move a few ulps into the triangle (never beyond an adjacent face's plane),
+    interior hits stay put, and a triangle too small for the margin gives its centroid."""
+    from kernels.mesh import INSIDE_ULPS
+
+    rng = np.random.default_rng(5)
+    tris, uvs = [], []
+    for _ in range(300):
+        centre = rng.uniform(-1e3, 1e3, 3) * rng.choice([1e-3, 1.0])
+        t = centre + rng.normal(size=(3, 3)) * rng.choice([1e-2, 1.0, 10.0])
+        tris.append(t)
+        uvs.append(rng.choice([(0.0, 0.5), (0.5, 0.0), (0.5, 0.5), (1.0, 0.0), (0.0, 0.0), (0.2, 0.3)]))
+    for _ in range(10):  # a few ulps across: no room for the margin
+        tris.append(100.0 + rng.normal(size=(3, 3)) * 1e-4)
+        uvs.append((0.0, 0.5))
+    tris = np.array(tris, dtype=np.float32)
+    uvs = np.array(uvs, dtype=np.float32)
+    out = wp.zeros(len(tris), dtype=wp.vec3, device=device)
+    wp.launch(probe_inside_point, dim=len(tris), device=device,
+              inputs=[wp.array(tris.reshape(-1, 3), dtype=wp.vec3, device=device),
+                      wp.array(uvs, dtype=wp.vec2, device=device)], outputs=[out])
+    p = out.numpy().astype(np.float64)
+    kinds = {"centroid": 0, "moved": 0, "kept": 0}
+    for t, (u, v), q in zip(tris.astype(np.float64), uvs, p):
+        a, b, c = t
+        ulp = float(np.finfo(np.float32).eps) * np.abs(t).max()
+        e = INSIDE_ULPS * ulp
+        n = np.cross(b - a, c - a)
+        area2 = np.linalg.norm(n)
+        margins = e * np.array([np.linalg.norm(c - b), np.linalg.norm(a - c), np.linalg.norm(b - a)]) / area2
+        want = u * a + v * b + (1 - u - v) * c
+        if margins.sum() >= 0.5:  # too small for the margin: the centroid
+            kinds["centroid"] += 1
+            assert np.abs(q - t.mean(axis=0)).max() <= 4 * ulp
+            continue
+        # in-plane distance of q to each edge line, positive inside
+        dist = [np.dot(np.cross(e1 - e0, q - e0), n) / area2 / np.linalg.norm(e1 - e0)
+                for e0, e1 in ((b, c), (c, a), (a, b))]
+        assert min(dist) >= 0.5 * e, (t, u, v, dist)
+        if (np.array([u, v, 1 - u - v]) > margins).all():
+            kinds["kept"] += 1
+            assert np.abs(q - want).max() <= 4 * ulp  # interior hits stay put
+        else:  # moved by the margins: each weight by at most its margin, times the longest edge
+            kinds["moved"] += 1
+            longest = max(np.linalg.norm(b - c), np.linalg.norm(c - a), np.linalg.norm(a - b))
+            assert np.linalg.norm(q - want) <= 2 * margins.sum() * longest + 4 * ulp, (t, u, v)
+    assert min(kinds.values()) >= 5, kinds  # every branch exercised
