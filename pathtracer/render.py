@@ -348,6 +348,7 @@ class Renderer:
         lt_done = [0]
         shown = [0]
         failed = threading.Event()
+        passes_before = list(itertools.accumulate((n for _, n in chunks), initial=0))  # passes in chunks[:k]
 
         def report():  # under cond
             if bar is None:
@@ -355,7 +356,7 @@ class Renderer:
             low = min(next_chunk)
             if launch_lt is not None:
                 low = min(low, lt_done[0])
-            passes = sum(n for _, n in chunks[:low])
+            passes = passes_before[low]
             if passes > shown[0]:
                 bar.update(passes - shown[0])
                 shown[0] = passes
@@ -402,7 +403,7 @@ class Renderer:
                 failed.set()  # interrupted: workers stop after their current launch
                 cond.notify_all()
             raise
-        return sum(n for _, n in chunks)
+        return passes_before[-1]
 
     def _sums(self, accum, accum_sq, discarded, rays, done: int, t0: float, lt=None) -> PassSum:
         s = self.scene

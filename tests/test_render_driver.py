@@ -109,9 +109,18 @@ def test_work_scheduler_runs_each_tile_in_order_and_balances():
             running.discard(tile)
             log.append((tile, first, me, t, time.perf_counter()))
 
-    done = r._run_free(r._worker_pool(), fake_launch, None, chunks, tiles, None)
+    class Bar:  # the progress bar gets the passes every tile has finished, in increasing steps
+        def __init__(self):
+            self.steps = []
+
+        def update(self, n):
+            assert n > 0
+            self.steps.append(n)
+
+    bar = Bar()
+    done = r._run_free(r._worker_pool(), fake_launch, None, chunks, tiles, bar)
     r.close()
-    assert done == 20
+    assert done == 20 and sum(bar.steps) == 20 and all(step % 2 == 0 for step in bar.steps)
     assert sorted((t, f) for t, f, *_ in log) == sorted((t, f) for t in range(tiles) for f, _ in chunks)
     for t in range(tiles):
         starts = [(start, f) for tt, f, _, start, _ in log if tt == t]
