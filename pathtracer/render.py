@@ -123,8 +123,9 @@ class Renderer:
     max_depth, light_samples, rr, sampler: None means the scene file's value (max_depth) or the default
     (1 light sample per light, Mitsuba's throughput roulette from the scene's rr_depth, independent sampling:
     the most efficient choices measured in docs/performance.md, except Sobol, see below).
-    sampler "sobol" draws Owen-scrambled Sobol' points indexed by pass: stratified across passes (best with a
-    power-of-two pass count), so ``PassSum.variance_of_mean`` then overestimates the error.
+    sampler "sobol" draws Owen-scrambled Sobol' points indexed by pass at the first two path vertices (independent
+    deeper): stratified across passes (best with a power-of-two pass count), so ``PassSum.variance_of_mean`` then
+    overestimates the error.
     light_sampling "solid_angle" samples rectangular lights uniformly in the solid angle they subtend (Urena et al.
     2013) instead of uniformly in area ("area", default): far less variance near a light.
     count_rays compiles an instrumented variant that counts every ray traced (for benchmarks).
