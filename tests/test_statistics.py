@@ -52,7 +52,9 @@ def test_distribution_functions_match_tables():
     assert stats.f_sf(1.0, 7, 7) == pytest.approx(0.5, abs=1e-12)
     assert stats.normal_sf2(1.959964) == pytest.approx(0.05, abs=1e-6)
     assert stats.sidak(0.05, 1) == pytest.approx(0.05)
-    assert 1 - (1 - stats.sidak(1e-3, 256)) ** 256 == pytest.approx(1e-3, rel=1e-9)
+    assert stats.sidak(0.05, 2) == pytest.approx(0.0253205655191, rel=1e-10)  # 1 - sqrt(0.95)
+    assert stats.sidak(1e-3, 256) == pytest.approx(3.90819679108e-06, rel=1e-9)  # 1 - 0.999^(1/256)
+    assert stats.sidak(1e-3, 256) > 1e-3 / 256  # a little less strict than Bonferroni
 
 
 def test_assertions_accept_the_truth_and_reject_a_bias():
