@@ -24,6 +24,7 @@ class RayShear:
     kz: int
     s: wp.vec3  # shear (d[kx] / d[kz], d[ky] / d[kz]) and scale 1 / d[kz]
     box_dir: wp.vec3  # the direction given to the box traversal: no exact zeros (its slab test would form 0 * inf)
+    inv_box_dir: wp.vec3  # its reciprocal, what the slab test multiplies by
 
 
 @wp.struct
@@ -57,6 +58,7 @@ def ray_shear(d: wp.vec3) -> RayShear:
         if wp.abs(bd[j]) < 1.0e-30:
             bd[j] = 1.0e-30  # bends the ray by < 1e-30 rad, far inside the boxes' padding
     r.box_dir = bd
+    r.inv_box_dir = wp.vec3(1.0 / bd[0], 1.0 / bd[1], 1.0 / bd[2])
     return r
 
 
@@ -111,7 +113,7 @@ def face_triangle_hit(scene: SceneData, f: int, o: wp.vec3, r: RayShear, tmax: f
                         scene.points[scene.indices[3 * f + 2]], tmax)
 
 
-STACK_SIZE = 64  # the heap's depth bounds the stack: 2^64 leaves would be needed to fill it
+STACK_SIZE = 64  # a traversal pushes at most one node per level; pathtracer/bvh.py keeps trees shallower
 StackInt = wp.types.vector(length=STACK_SIZE, dtype=wp.int32)
 StackFloat = wp.types.vector(length=STACK_SIZE, dtype=wp.float32)
 
@@ -147,7 +149,7 @@ def mesh_closest(scene: SceneData, o: wp.vec3, d: wp.vec3, tmax: float) -> TriHi
     first and the farther pushed with its entry distance, which is skipped when popped beyond the nearest hit so far.
     """
     r = ray_shear(d)
-    inv_d = wp.vec3(1.0 / r.box_dir[0], 1.0 / r.box_dir[1], 1.0 / r.box_dir[2])
+    inv_d = r.inv_box_dir
     best = TriHit()
     best.face = -1
     best.t = tmax
@@ -210,7 +212,7 @@ def mesh_closest(scene: SceneData, o: wp.vec3, d: wp.vec3, tmax: float) -> TriHi
 def mesh_occluded(scene: SceneData, o: wp.vec3, d: wp.vec3, tmax: float) -> bool:
     """Any triangle hit in 0 <= t < tmax (unit d)? (Any hit ends the search, so no ordering.)"""
     r = ray_shear(d)
-    inv_d = wp.vec3(1.0 / r.box_dir[0], 1.0 / r.box_dir[1], 1.0 / r.box_dir[2])
+    inv_d = r.inv_box_dir
     if box_entry(scene, 0, o, inv_d, tmax) < 0.0:
         return False
     stack_node = StackInt()
