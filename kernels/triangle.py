@@ -1,4 +1,8 @@
-"""Watertight ray-triangle hits through a box tree (pathtracer/bvh.py) over padded triangle boxes.
+"""Watertight ray-triangle hits through a 4-wide box tree (pathtracer/bvh.py) over padded triangle boxes.
+
+Each node tests its four child boxes at once (vec4 operations, which Warp's clang turns into SSE/AVX; selects rather
+than min/max or `and`, which would keep it scalar), and each leaf its up to four triangles at once
+(``leaf_closest``). Closest-hit traversal is nearest-first with a stack of entry distances.
 
 Warp's ``mesh_query_ray`` has a watertight triangle test but a slab test with no rounding slack, so a ray through a
 vertex that lies on a node box's face can skip the leaf that holds the hit (Warp 1.19: 99 of 34594 rays aimed at
@@ -107,104 +111,234 @@ def ray_triangle(o: wp.vec3, r: RayShear, a: wp.vec3, b: wp.vec3, c: wp.vec3, tm
     return wp.vec3(T * inv, wp.abs(U) * inv, wp.abs(V) * inv)
 
 
-@wp.func
-def face_triangle_hit(scene: SceneData, f: int, o: wp.vec3, r: RayShear, tmax: float) -> wp.vec3:
-    return ray_triangle(o, r, scene.points[scene.indices[3 * f + 0]], scene.points[scene.indices[3 * f + 1]],
-                        scene.points[scene.indices[3 * f + 2]], tmax)
-
-
-STACK_SIZE = 64  # a traversal pushes at most one node per level; pathtracer/bvh.py keeps trees shallower
+STACK_SIZE = 64  # pathtracer/bvh.py's collapse_wide bounds what a traversal pushes (WideTree.stack_bound)
 StackInt = wp.types.vector(length=STACK_SIZE, dtype=wp.int32)
 StackFloat = wp.types.vector(length=STACK_SIZE, dtype=wp.float32)
+BIG = wp.constant(3.0e38)
+
+
+@wp.struct
+class RayBoxes:
+    """Per-ray set-up of the 4-wide box test: the near and far slab of each axis by the direction's sign."""
+
+    o: wp.vec3
+    inv_d: wp.vec3
+    near_x: int  # 0: the lower bound is the near plane along x (direction >= 0), 1: the upper one
+    near_y: int
+    near_z: int
 
 
 @wp.func
-def box_entry(scene: SceneData, node: int, o: wp.vec3, inv_d: wp.vec3, tmax: float) -> float:
-    """Where the ray enters node ``node``'s box (0 if it starts inside), or -1 if it misses it within [0, tmax).
-    The same float32 slab test as Warp's BVH query (the box padding is sized for its rounding)."""
-    lo = scene.bvh_lower[node]
-    hi = scene.bvh_upper[node]
-    l1 = (lo[0] - o[0]) * inv_d[0]
-    l2 = (hi[0] - o[0]) * inv_d[0]
-    lmin = wp.min(l1, l2)
-    lmax = wp.max(l1, l2)
-    l1 = (lo[1] - o[1]) * inv_d[1]
-    l2 = (hi[1] - o[1]) * inv_d[1]
-    lmin = wp.max(wp.min(l1, l2), lmin)
-    lmax = wp.min(wp.max(l1, l2), lmax)
-    l1 = (lo[2] - o[2]) * inv_d[2]
-    l2 = (hi[2] - o[2]) * inv_d[2]
-    lmin = wp.max(wp.min(l1, l2), lmin)
-    lmax = wp.min(wp.max(l1, l2), lmax)
-    if lmax >= 0.0 and lmax >= lmin and lmin < tmax:
-        return wp.max(lmin, 0.0)
-    return -1.0
+def ray_boxes(o: wp.vec3, r: RayShear) -> RayBoxes:
+    b = RayBoxes()
+    b.o = o
+    b.inv_d = r.inv_box_dir
+    b.near_x = wp.where(r.inv_box_dir[0] < 0.0, 1, 0)
+    b.near_y = wp.where(r.inv_box_dir[1] < 0.0, 1, 0)
+    b.near_z = wp.where(r.inv_box_dir[2] < 0.0, 1, 0)
+    return b
+
+
+@wp.func
+def wide_entry(scene: SceneData, node: int, rb: RayBoxes, tmax: float) -> wp.vec4:
+    """Where the ray enters each of node ``node``'s four child boxes (0 if it starts inside), or BIG where it misses
+    one within [0, tmax). The slab test of the binary traversal, (plane - o) / d in float32 (the boxes' padding is
+    sized for its rounding), four boxes per vec4 operation; ``wp.where`` instead of min/max (whose NaN rules keep
+    clang from vectorizing) and the near plane chosen per axis by the direction's sign, so no min/max of the pair."""
+    base = 6 * node
+    inv = rb.inv_d
+    tnx = (scene.bvh_boxes[base + rb.near_x] - wp.vec4(rb.o[0])) * inv[0]
+    tfx = (scene.bvh_boxes[base + 1 - rb.near_x] - wp.vec4(rb.o[0])) * inv[0]
+    tny = (scene.bvh_boxes[base + 2 + rb.near_y] - wp.vec4(rb.o[1])) * inv[1]
+    tfy = (scene.bvh_boxes[base + 3 - rb.near_y] - wp.vec4(rb.o[1])) * inv[1]
+    tnz = (scene.bvh_boxes[base + 4 + rb.near_z] - wp.vec4(rb.o[2])) * inv[2]
+    tfz = (scene.bvh_boxes[base + 5 - rb.near_z] - wp.vec4(rb.o[2])) * inv[2]
+    out = wp.vec4()
+    for k in range(4):
+        tn = wp.where(tnx[k] > tny[k], tnx[k], tny[k])
+        tn = wp.where(tnz[k] > tn, tnz[k], tn)
+        tn = wp.where(tn > 0.0, tn, 0.0)
+        tf = wp.where(tfx[k] < tfy[k], tfx[k], tfy[k])
+        tf = wp.where(tfz[k] < tf, tfz[k], tf)
+        hit = wp.where(tf >= tn, tn, BIG)  # two selects, not `and`: a branch would stop the vectorizer
+        out[k] = wp.where(tn < tmax, hit, BIG)
+    return out
+
+
+@wp.func
+def leaf_index(ref: int) -> int:
+    """The leaf block of leaf reference ``ref`` (<= -2; see pathtracer/bvh.py leaf_ref)."""
+    return -2 - ref
+
+
+@wp.struct
+class LeafHit:
+    lane: int  # -1: no hit closer than the limit
+    t: float
+    u: float
+    v: float
+
+
+@wp.func
+def edge_fallback(e: wp.vec4, ax: wp.vec4, ay: wp.vec4, bx: wp.vec4, by: wp.vec4) -> wp.vec4:
+    """``edge_function``'s float64 second look, for the lanes where the float32 value is exactly zero."""
+    out = e
+    for k in range(4):
+        if e[k] == 0.0:
+            out[k] = edge_function(ax[k], ay[k], bx[k], by[k])
+    return out
+
+
+@wp.func
+def leaf_closest(scene: SceneData, leaf: int, o: wp.vec3, r: RayShear, tmax: float) -> LeafHit:
+    """``ray_triangle`` on the up to four triangles of one leaf at once: the leaf stores each corner's x, y and z
+    of its four triangles as vec4s (``tri_soa[9 leaf + 3 corner + axis]``; unused lanes are NaN, which every
+    comparison rejects), so the shear and the edge functions are four-wide operations. Lane by lane the arithmetic
+    is ``ray_triangle``'s, operation for operation, so it is exactly as watertight. The nearest hit below tmax."""
+    base = 9 * leaf
+    okx = wp.vec4(o[r.kx])
+    oky = wp.vec4(o[r.ky])
+    okz = wp.vec4(o[r.kz])
+    az = scene.tri_soa[base + r.kz] - okz
+    bz = scene.tri_soa[base + 3 + r.kz] - okz
+    cz = scene.tri_soa[base + 6 + r.kz] - okz
+    ax = (scene.tri_soa[base + r.kx] - okx) - az * r.s[0]
+    ay = (scene.tri_soa[base + r.ky] - oky) - az * r.s[1]
+    bx = (scene.tri_soa[base + 3 + r.kx] - okx) - bz * r.s[0]
+    by = (scene.tri_soa[base + 3 + r.ky] - oky) - bz * r.s[1]
+    cx = (scene.tri_soa[base + 6 + r.kx] - okx) - cz * r.s[0]
+    cy = (scene.tri_soa[base + 6 + r.ky] - oky) - cz * r.s[1]
+    U = wp.cw_mul(cx, by) - wp.cw_mul(cy, bx)
+    V = wp.cw_mul(ax, cy) - wp.cw_mul(ay, cx)
+    W = wp.cw_mul(bx, ay) - wp.cw_mul(by, ax)
+    zeros = int(0)
+    for k in range(4):  # selects, not `or`: branches would stop the vectorizer
+        zeros += wp.where(U[k] == 0.0, 1, 0) + wp.where(V[k] == 0.0, 1, 0) + wp.where(W[k] == 0.0, 1, 0)
+    if zeros > 0:  # rare: a ray exactly on an edge's line
+        U = edge_fallback(U, cx, cy, bx, by)
+        V = edge_fallback(V, ax, ay, cx, cy)
+        W = edge_fallback(W, bx, by, ax, ay)
+    T = wp.cw_mul(U, az * r.s[2]) + wp.cw_mul(V, bz * r.s[2]) + wp.cw_mul(W, cz * r.s[2])
+    det = U + V + W
+    # per lane: a miss if the edge functions have both signs, or det = 0, or t outside [0, tmax) (NaN fails both)
+    t4 = wp.vec4()
+    for k in range(4):
+        u = U[k]
+        v = V[k]
+        w = W[k]
+        lo = wp.where(u < v, u, v)
+        lo = wp.where(w < lo, w, lo)
+        hi = wp.where(u > v, u, v)
+        hi = wp.where(w > hi, w, hi)
+        dk = wp.where(det[k] < 0.0, -det[k], det[k])
+        tk = wp.where(det[k] < 0.0, -T[k], T[k])
+        tk = wp.where(lo < 0.0, wp.where(hi > 0.0, -1.0, tk), tk)
+        tk = wp.where(tk < tmax * dk, tk, -1.0)
+        tk = wp.where(dk == 0.0, -1.0, tk)
+        t4[k] = wp.where(tk >= 0.0, tk / dk, BIG)
+    best = LeafHit()
+    best.lane = -1
+    best.t = tmax
+    for k in range(4):
+        if t4[k] < best.t:
+            best.lane = k
+            best.t = t4[k]
+    if best.lane >= 0:
+        inv = 1.0 / wp.abs(det[best.lane])
+        best.u = wp.abs(U[best.lane]) * inv
+        best.v = wp.abs(V[best.lane]) * inv
+    return best
+
+
+@wp.struct
+class Children:
+    t: wp.vec4
+    c: wp.vec4i
+
+
+@wp.func
+def sort_pair(t: wp.vec4, c: wp.vec4i, i: int, j: int) -> Children:
+    """(t, c) with entries i < j swapped if t[j] < t[i]."""
+    tt = t
+    cc = c
+    if t[j] < t[i]:
+        tt[i] = t[j]
+        tt[j] = t[i]
+        cc[i] = c[j]
+        cc[j] = c[i]
+    out = Children()
+    out.t = tt
+    out.c = cc
+    return out
 
 
 @wp.func
 def mesh_closest(scene: SceneData, o: wp.vec3, d: wp.vec3, tmax: float) -> TriHit:
     """The nearest triangle hit in 0 <= t < tmax (unit d); ``face`` -1 if none.
 
-    Nearest-first traversal of the box tree (pathtracer/bvh.py): of a node's two children the nearer is entered
-    first and the farther pushed with its entry distance, which is skipped when popped beyond the nearest hit so far.
+    Nearest-first traversal of the 4-wide tree (pathtracer/bvh.py collapse_wide): of a node's children the ray
+    meets, the nearest is entered next and the others pushed far to near with their entry distances (a node with
+    one such child pushes nothing); a popped entry beyond the nearest hit so far is skipped.
     """
     r = ray_shear(d)
-    inv_d = r.inv_box_dir
+    rb = ray_boxes(o, r)
     best = TriHit()
     best.face = -1
     best.t = tmax
-    if box_entry(scene, 0, o, inv_d, tmax) < 0.0:
-        return best
     stack_node = StackInt()
     stack_t = StackFloat()
     sp = int(0)
-    node = int(0)
+    ref = scene.bvh_root
     while True:
-        count = scene.bvh_count[node]
-        descend = bool(False)
-        if count > 0:
-            first = scene.bvh_start[node]
-            for k in range(count):
-                f = scene.bvh_prims[first + k]
-                h = face_triangle_hit(scene, f, o, r, best.t)
-                if h[0] >= 0.0:
-                    best.face = f
-                    best.t = h[0]
-                    best.u = h[1]
-                    best.v = h[2]
+        if ref >= 0:
+            t4 = wide_entry(scene, ref, rb, best.t)
+            c4 = scene.bvh_child[ref]
+            hits = int(0)
+            for k in range(4):
+                if t4[k] < BIG:
+                    hits += 1
+            if hits == 1:
+                for k in range(4):
+                    if t4[k] < BIG:
+                        ref = c4[k]
+                continue
+            if hits > 1:
+                # sort the four (distance, child) pairs, misses (BIG) last: a five-comparator network
+                s01 = sort_pair(t4, c4, 0, 1)
+                t4 = s01.t
+                c4 = s01.c
+                s23 = sort_pair(t4, c4, 2, 3)
+                s02 = sort_pair(s23.t, s23.c, 0, 2)
+                s13 = sort_pair(s02.t, s02.c, 1, 3)
+                s12 = sort_pair(s13.t, s13.c, 1, 2)
+                t4 = s12.t
+                c4 = s12.c
+                for k in range(3, 0, -1):
+                    if k < hits:
+                        stack_node[sp] = c4[k]
+                        stack_t[sp] = t4[k]
+                        sp += 1
+                ref = c4[0]
+                continue
         else:
-            a = scene.bvh_start[node]  # an inner node's children: bvh_start, bvh_start + 1
-            b = a + 1
-            ta = box_entry(scene, a, o, inv_d, best.t)
-            tb = box_entry(scene, b, o, inv_d, best.t)
-            if ta >= 0.0 and tb >= 0.0:
-                if tb < ta:
-                    tmp = a
-                    a = b
-                    b = tmp
-                    tt = ta
-                    ta = tb
-                    tb = tt
-                stack_node[sp] = b
-                stack_t[sp] = tb
-                sp += 1
-                node = a
-                descend = True
-            elif ta >= 0.0:
-                node = a
-                descend = True
-            elif tb >= 0.0:
-                node = b
-                descend = True
-        if not descend:
-            # pop the next subtree that still starts before the nearest hit
-            while sp > 0 and not descend:
-                sp -= 1
-                if stack_t[sp] < best.t:
-                    node = stack_node[sp]
-                    descend = True
-            if not descend:
-                break
+            leaf = leaf_index(ref)
+            h = leaf_closest(scene, leaf, o, r, best.t)
+            if h.lane >= 0:
+                best.face = 4 * leaf + h.lane
+                best.t = h.t
+                best.u = h.u
+                best.v = h.v
+        # pop the next subtree that still starts before the nearest hit
+        found = bool(False)
+        while sp > 0 and not found:
+            sp -= 1
+            if stack_t[sp] < best.t:
+                ref = stack_node[sp]
+                found = True
+        if not found:
+            break
+    if best.face >= 0:
+        best.face = scene.tri_face[best.face]
     return best
 
 
@@ -212,37 +346,32 @@ def mesh_closest(scene: SceneData, o: wp.vec3, d: wp.vec3, tmax: float) -> TriHi
 def mesh_occluded(scene: SceneData, o: wp.vec3, d: wp.vec3, tmax: float) -> bool:
     """Any triangle hit in 0 <= t < tmax (unit d)? (Any hit ends the search, so no ordering.)"""
     r = ray_shear(d)
-    inv_d = r.inv_box_dir
-    if box_entry(scene, 0, o, inv_d, tmax) < 0.0:
-        return False
+    rb = ray_boxes(o, r)
     stack_node = StackInt()
     sp = int(0)
-    node = int(0)
+    ref = scene.bvh_root
     while True:
-        count = scene.bvh_count[node]
-        if count > 0:
-            first = scene.bvh_start[node]
-            for k in range(count):
-                if face_triangle_hit(scene, scene.bvh_prims[first + k], o, r, tmax)[0] >= 0.0:
-                    return True
-        else:
-            a = scene.bvh_start[node]  # an inner node's children: bvh_start, bvh_start + 1
-            b = a + 1
-            hit_a = box_entry(scene, a, o, inv_d, tmax) >= 0.0
-            hit_b = box_entry(scene, b, o, inv_d, tmax) >= 0.0
-            if hit_a and hit_b:
-                stack_node[sp] = b
-                sp += 1
-                node = a
+        if ref >= 0:
+            t4 = wide_entry(scene, ref, rb, tmax)
+            c4 = scene.bvh_child[ref]
+            found = bool(False)
+            next_ref = int(0)
+            for k in range(4):
+                if t4[k] < BIG:
+                    if not found:
+                        next_ref = c4[k]
+                        found = True
+                    else:
+                        stack_node[sp] = c4[k]
+                        sp += 1
+            if found:
+                ref = next_ref
                 continue
-            if hit_a:
-                node = a
-                continue
-            if hit_b:
-                node = b
-                continue
+        elif ref != -1:  # -1: an empty slot (never entered: its box is empty)
+            if leaf_closest(scene, leaf_index(ref), o, r, tmax).lane >= 0:
+                return True
         if sp == 0:
             break
         sp -= 1
-        node = stack_node[sp]
+        ref = stack_node[sp]
     return False

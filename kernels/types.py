@@ -22,12 +22,13 @@ class CameraData:
 class SceneData:
     """Every primitive of a scene. Arrays of absent kinds are empty (their code is compiled out)."""
 
-    # box tree over every triangle's padded box (pathtracer/bvh.py; traversed in kernels/triangle.py)
-    bvh_lower: wp.array(dtype=wp.vec3)
-    bvh_upper: wp.array(dtype=wp.vec3)
-    bvh_start: wp.array(dtype=wp.int32)  # a leaf's first entry in bvh_prims, an inner node's first child
-    bvh_count: wp.array(dtype=wp.int32)  # a leaf's triangle count, 0 for inner nodes
-    bvh_prims: wp.array(dtype=wp.int32)  # face indices, leaf by leaf
+    # 4-wide box tree over every triangle's padded box (pathtracer/bvh.py WideTree; traversed in kernels/triangle.py)
+    bvh_boxes: wp.array(dtype=wp.vec4)  # 6 per node: lower x, upper x, lower y, ... of its four children
+    bvh_child: wp.array(dtype=wp.vec4i)  # child references: inner node >= 0, leaf < 0 (bvh.leaf_ref)
+    bvh_root: int  # a reference too
+    tri_soa: wp.array(dtype=wp.vec4)  # 9 per leaf block: corner c's axis a of its four triangles at 3 c + a (NaN: unused)
+    tri_face: wp.array(dtype=wp.int32)  # 4 per leaf block: the face in each lane, -1 unused
+    mesh_id: wp.uint64  # the wp.Mesh of the "warp" triangle backend (kernels/triangle_warp.py), 0 otherwise
     points: wp.array(dtype=wp.vec3)
     indices: wp.array(dtype=wp.int32)  # 3 per face
     face_material: wp.array(dtype=wp.int32)

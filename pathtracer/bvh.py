@@ -1,4 +1,4 @@
-"""A bounding volume hierarchy over boxes, built with numpy for ``kernels/bvh.py``'s nearest-first traversal.
+"""A bounding volume hierarchy over boxes, built with numpy for ``kernels/triangle.py``'s nearest-first traversal.
 
 Why our own: Warp 1.19's ``wp.Bvh`` ray query visits a node's two children in a fixed order, so a closest-hit query
 keeps descending into far subtrees until a hit shrinks its limit; on the mirror teapot that traversal was 60% of the
@@ -7,6 +7,7 @@ render time. Here the traversal tests both children and descends into the nearer
 Every inner node sorts its range of primitives along the longest axis of its box centres and cuts it where the
 surface area heuristic is lowest (a sweep along that one axis), or at the middle for small ranges and deep levels;
 a level's sorts are one vectorised ``lexsort``, so a 70k-triangle mesh builds in about a second.
+``collapse_wide`` turns the binary tree into the 4-wide one the kernels traverse (each node takes its grandchildren).
 """
 
 from __future__ import annotations
@@ -119,3 +120,99 @@ def build_box_tree(lower: np.ndarray, upper: np.ndarray, leaf_size: int = LEAF_S
             hi[ii] = np.maximum(hi[cc], hi[cc + 1])
             start[ii] = cc
     return BoxTree(lo, hi, start, count, perm.astype(np.int32), len(levels))
+
+
+WIDTH = 4  # children per node of the wide tree
+EMPTY_SLOT = -1  # child reference of an unused slot (its box is empty: +inf lower, -inf upper)
+
+
+def leaf_ref(block: np.ndarray) -> np.ndarray:
+    """Child reference of leaf block ``block``: -2 - block; inner nodes are referenced by their index (>= 0)."""
+    return -2 - np.asarray(block, np.int64)
+
+
+@dataclass
+class WideTree:
+    """A 4-wide tree in structure-of-arrays form, for ``kernels/triangle.py``'s vectorised box tests.
+
+    ``boxes[6 n + 2 a]`` holds the lower bounds of node n's four children along axis a, ``boxes[6 n + 2 a + 1]`` the
+    upper bounds (so a ray picks its near and far planes per axis by its direction's sign). ``child[n]`` holds
+    the four child references: an inner node's index (>= 0), a leaf block (``leaf_ref``), or ``EMPTY_SLOT``.
+    Leaf block k holds the primitives ``prims[leaf_start[k]:leaf_start[k] + leaf_count[k]]`` (at most 4).
+    ``root`` is a reference too (a leaf when n <= LEAF_SIZE).
+    """
+
+    boxes: np.ndarray  # (6 nodes, 4) float32
+    child: np.ndarray  # (nodes, 4) int32
+    prims: np.ndarray  # (n,) int32, leaf by leaf (as the binary tree's)
+    leaf_start: np.ndarray  # (leaves,) int64: first entry of each leaf block in prims
+    leaf_count: np.ndarray  # (leaves,) int64
+    root: int
+    depth: int  # levels of inner nodes
+    stack_bound: int  # the most entries a closest-hit traversal can hold on its stack (siblings along a path)
+
+
+def collapse_wide(tree: BoxTree) -> WideTree:
+    """Every wide node takes its binary node's grandchildren (a leaf child stands for itself): 2-4 children.
+
+    Level by level, vectorised. The boxes are the binary nodes' own (already padded) float32 boxes, so the wide
+    traversal tests exactly the boxes the binary one did, only four at once."""
+    is_leaf = tree.count > 0
+    leaf_nodes = np.flatnonzero(is_leaf)
+    leaf_nodes = leaf_nodes[np.argsort(tree.start[leaf_nodes])]  # blocks in prims order
+    block_of = np.full(len(is_leaf), -1, dtype=np.int64)
+    block_of[leaf_nodes] = np.arange(len(leaf_nodes))
+    leaf_start = tree.start[leaf_nodes].astype(np.int64)
+    leaf_count = tree.count[leaf_nodes].astype(np.int64)
+    lo4, hi4, ch4 = [], [], []
+    if is_leaf[0]:
+        return WideTree(np.zeros((0, 4), np.float32), np.zeros((0, 4), np.int32), tree.prims, leaf_start,
+                        leaf_count, int(leaf_ref(0)), 0, 0)
+    level = np.array([0])  # binary ids of this level's wide nodes
+    bound = np.array([0])  # stack entries their traversal may already hold
+    next_id = 1
+    depth, stack_bound = 0, 0
+    while len(level):
+        depth += 1
+        a = tree.start[level]
+        slots = np.full((len(level), WIDTH), -1, dtype=np.int64)
+        for side in (0, 1):
+            c = a + side
+            inner = ~is_leaf[c]
+            slots[:, 2 * side] = np.where(inner, tree.start[c], c)
+            slots[:, 2 * side + 1] = np.where(inner, tree.start[c] + 1, -1)
+        used = slots >= 0
+        b = np.where(used, slots, 0)
+        lo = np.where(used[..., None], tree.lower[b], np.inf).astype(np.float32)  # (k, 4, 3)
+        hi = np.where(used[..., None], tree.upper[b], -np.inf).astype(np.float32)
+        child_inner = used & ~is_leaf[b]
+        ids = np.full(slots.shape, EMPTY_SLOT, dtype=np.int64)
+        new = np.flatnonzero(child_inner.reshape(-1))
+        ids.reshape(-1)[new] = next_id + np.arange(len(new))
+        next_id += len(new)
+        leaves = used & is_leaf[b]
+        ids[leaves] = leaf_ref(block_of[b[leaves]])
+        lo4.append(lo)
+        hi4.append(hi)
+        ch4.append(ids)
+        # siblings pushed on the way down: at most (children - 1) per node on the path
+        here = bound + used.sum(axis=1) - 1
+        stack_bound = max(stack_bound, int(here.max()))
+        level = b.reshape(-1)[new]
+        bound = np.repeat(here, child_inner.sum(axis=1))
+    lo = np.concatenate(lo4)
+    hi = np.concatenate(hi4)
+    boxes = np.empty((len(lo), 3, 2, WIDTH), dtype=np.float32)
+    boxes[:, :, 0, :] = lo.transpose(0, 2, 1)
+    boxes[:, :, 1, :] = hi.transpose(0, 2, 1)
+    child = np.concatenate(ch4).astype(np.int32)
+    return WideTree(boxes.reshape(-1, WIDTH), child, tree.prims, leaf_start, leaf_count, root=0, depth=depth,
+                    stack_bound=stack_bound)
+
+
+def leaf_lanes(wide: WideTree) -> np.ndarray:
+    """(leaves, 4) primitive index of each leaf block's lanes, -1 where a block holds fewer than four."""
+    lanes = np.arange(WIDTH)
+    pos = wide.leaf_start[:, None] + lanes[None, :]
+    used = lanes[None, :] < wide.leaf_count[:, None]
+    return np.where(used, wide.prims[np.where(used, pos, 0)], -1)

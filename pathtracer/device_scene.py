@@ -11,7 +11,9 @@ import warp as wp
 
 from kernels.integrator import LIGHT_SAMPLINGS, RR_RULES, SAMPLERS, VIEWS, Features
 from kernels.types import CameraData, SceneData
-from pathtracer.bvh import BoxTree, build_box_tree
+from kernels.triangle import STACK_SIZE
+from pathtracer.bvh import BoxTree, WideTree, build_box_tree, collapse_wide, leaf_lanes
+from pathtracer.errors import RenderError
 from pathtracer.scene import MIRROR, Scene, TriangleMesh
 
 
@@ -55,6 +57,15 @@ def _triangle_tree(points: np.ndarray, faces: np.ndarray, pad: float) -> BoxTree
     lo = np.nextafter((tri.min(axis=1) - pad).astype(np.float32), np.float32(-np.inf))
     hi = np.nextafter((tri.max(axis=1) + pad).astype(np.float32), np.float32(np.inf))
     return build_box_tree(lo, hi)
+
+
+def leaf_soa(points: np.ndarray, faces: np.ndarray, tree: WideTree) -> tuple[np.ndarray, np.ndarray]:
+    """(9 leaves, 4) corner coordinates of each leaf block's triangles, lane by lane (NaN in unused lanes), as
+    ``kernels.triangle.leaf_closest`` reads them; and (4 leaves,) the face in each lane (-1 unused)."""
+    lanes = leaf_lanes(tree)  # (leaves, 4)
+    corners = points[faces[np.maximum(lanes, 0)]]  # (leaves, 4, 3 corners, 3 axes)
+    corners[lanes < 0] = np.nan
+    return corners.transpose(0, 2, 3, 1).reshape(-1, 4), lanes.reshape(-1)
 
 
 QUAD_SHAPES = ("rectangle", "cube")
@@ -188,15 +199,21 @@ class DeviceScene:
         self.points = _vec3(points, device)
         self.indices = _arr(faces, wp.int32, device)
         self.tree = None
+        d.bvh_root = -1  # an empty leaf
         if len(faces):
             self.box_pad = triangle_box_pad(points, np.asarray(scene.camera.to_world)[:3, 3])
-            self.tree = _triangle_tree(np.asarray(points), faces, self.box_pad)
+            self.tree = collapse_wide(_triangle_tree(np.asarray(points), faces, self.box_pad))
+            if self.tree.stack_bound >= STACK_SIZE:
+                raise RenderError(f"{scene.source}: the triangle tree is too deep for the traversal's stack "
+                                  f"({self.tree.stack_bound} entries, {STACK_SIZE} available)")
+            d.bvh_root = self.tree.root
         t = self.tree
-        d.bvh_lower = _vec3(t.lower if t else np.zeros((0, 3)), device)
-        d.bvh_upper = _vec3(t.upper if t else np.zeros((0, 3)), device)
-        d.bvh_start = _arr(t.start if t else [], wp.int32, device)
-        d.bvh_count = _arr(t.count if t else [], wp.int32, device)
-        d.bvh_prims = _arr(t.prims if t else [], wp.int32, device)
+        d.bvh_boxes = wp.array(t.boxes if t else np.zeros((0, 4), np.float32), dtype=wp.vec4, device=device)
+        d.bvh_child = wp.array(t.child if t else np.zeros((0, 4), np.int32), dtype=wp.vec4i, device=device)
+        soa, lane_face = leaf_soa(np.asarray(points, np.float32), faces, t) if t else (np.zeros((0, 4)), [])
+        d.tri_soa = wp.array(soa.astype(np.float32), dtype=wp.vec4, device=device)
+        d.tri_face = _arr(lane_face, wp.int32, device)
+        d.mesh_id = wp.uint64(0)
         d.points = self.points
         d.indices = self.indices
         d.face_material = _arr(face_material, wp.int32, device)

@@ -1,13 +1,13 @@
 """pathtracer/bvh.py: the box tree the triangle traversal (kernels/triangle.py) walks.
 
-The traversal itself is tested through the integrator's probes (test_kernels: nearest hits against float64
+The 4-wide tree (collapse_wide) is checked the same way. The traversal itself is tested through the integrator's probes (test_kernels: nearest hits against float64
 Moller-Trumbore; test_hard_cases: watertightness on the teapot, an icosphere and the bunny)."""
 
 import numpy as np
 import pytest
 
 from kernels.triangle import STACK_SIZE
-from pathtracer.bvh import build_box_tree
+from pathtracer.bvh import build_box_tree, collapse_wide, leaf_lanes
 
 
 def walk(tree, lower, upper):
@@ -85,3 +85,48 @@ def _subtree(tree, root):
 def test_empty_input_is_an_error():
     with pytest.raises(ValueError):
         build_box_tree(np.zeros((0, 3)), np.zeros((0, 3)))
+
+
+def walk_wide(wide, lower, upper):
+    """Every leaf block reached once, every slot's box the union of what its subtree holds, empty slots empty;
+    returns (primitives reached, the largest stack a closest-hit traversal can hold)."""
+    reached = []
+    deepest_stack = 0
+
+    def visit(ref, pushed):
+        nonlocal deepest_stack
+        deepest_stack = max(deepest_stack, pushed)
+        if ref <= -2:
+            k = -2 - ref
+            p = wide.prims[wide.leaf_start[k]:wide.leaf_start[k] + wide.leaf_count[k]]
+            assert 1 <= len(p) <= 4
+            reached.extend(p.tolist())
+            return lower[p].min(axis=0), upper[p].max(axis=0)
+        box = wide.boxes[6 * ref:6 * ref + 6]  # rows: lower x, upper x, lower y, upper y, lower z, upper z
+        kids = wide.child[ref]
+        used = kids != -1
+        assert used.sum() >= 2
+        lo_all, hi_all = np.full(3, np.inf, np.float32), np.full(3, -np.inf, np.float32)
+        for k in range(4):
+            if not used[k]:
+                assert (box[0::2, k] == np.inf).all() and (box[1::2, k] == -np.inf).all()
+                continue
+            lo, hi = visit(int(kids[k]), pushed + int(used.sum()) - 1)
+            assert np.array_equal(box[0::2, k], lo) and np.array_equal(box[1::2, k], hi)
+            lo_all, hi_all = np.minimum(lo_all, lo), np.maximum(hi_all, hi)
+        return lo_all, hi_all
+
+    visit(wide.root, 0)
+    return np.array(reached), deepest_stack
+
+
+@pytest.mark.parametrize("kind", ["uniform", "identical", "geometric", "shell"])
+@pytest.mark.parametrize("n", [1, 4, 5, 17, 1000, 20000])
+def test_wide_tree_holds_every_box_once_with_exact_bounds_and_a_true_stack_bound(kind, n):
+    lower, upper = boxes(kind, n, np.random.default_rng(n))
+    wide = collapse_wide(build_box_tree(lower, upper))
+    reached, stack = walk_wide(wide, lower, upper)
+    assert np.array_equal(np.sort(reached), np.arange(n))
+    assert stack == wide.stack_bound and wide.stack_bound < STACK_SIZE
+    lanes = leaf_lanes(wide)
+    assert np.array_equal(np.sort(lanes[lanes >= 0]), np.arange(n))
