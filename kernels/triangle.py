@@ -294,13 +294,13 @@ def mesh_closest(scene: SceneData, o: wp.vec3, d: wp.vec3, tmax: float) -> TriHi
             t4 = wide_entry(scene, ref, rb, best.t)
             c4 = scene.bvh_child[ref]
             hits = int(0)
-            for k in range(4):
-                if t4[k] < BIG:
-                    hits += 1
+            only = int(0)
+            for k in range(4):  # selects, not branches
+                hit = t4[k] < BIG
+                hits += wp.where(hit, 1, 0)
+                only = wp.where(hit, c4[k], only)
             if hits == 1:
-                for k in range(4):
-                    if t4[k] < BIG:
-                        ref = c4[k]
+                ref = only
                 continue
             if hits > 1:
                 # sort the four (distance, child) pairs, misses (BIG) last: a five-comparator network
