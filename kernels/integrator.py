@@ -26,6 +26,7 @@ import warp as wp
 from kernels.camera import camera_ray
 from kernels.mesh import mesh_hit, smooth_normal, sphere_hit
 from kernels.triangle import mesh_closest, mesh_occluded
+from kernels.triangle_warp import warp_mesh_closest, warp_mesh_occluded
 from kernels.offset import max_abs, offset_origin
 from kernels.quad import nearest_quad, occluded_quads, quad_hit
 from kernels.sobol import independent4, padded_sobol4
@@ -53,6 +54,10 @@ LIGHT_AREA = 0  # next-event samples uniform in the light's area
 LIGHT_SOLID_ANGLE = 1  # uniform in the solid angle of rectangular lights (Urena et al. 2013), area otherwise
 LIGHT_SAMPLINGS = {"area": LIGHT_AREA, "solid_angle": LIGHT_SOLID_ANGLE}
 
+TRIANGLES_WIDE = 0  # our 4-wide box tree over padded boxes, watertight (kernels/triangle.py)
+TRIANGLES_WARP = 1  # Warp's wp.Mesh and mesh_query_ray (kernels/triangle_warp.py)
+TRIANGLES = {"wide": TRIANGLES_WIDE, "warp": TRIANGLES_WARP}
+
 SEED_RR_LAMBDA = wp.constant(0.2)
 INF = wp.constant(3.0e38)
 
@@ -73,6 +78,7 @@ class Features:
     light_sampling: int = LIGHT_AREA
     count_rays: bool = False  # instrumented variant for benchmarks: counts closest-hit and shadow rays
     light_tracing: bool = False  # caustics seen directly are left to the light tracer (kernels/light_tracer.py)
+    triangles: int = TRIANGLES_WIDE  # the triangle backend
 
 
 @wp.struct
@@ -114,6 +120,8 @@ def make_tracers(features: Features):
     HAS_QUADS = features.quads
     HAS_SPHERES = features.spheres
     HAS_SMOOTH = features.smooth_normals
+    closest, any_hit = (warp_mesh_closest, warp_mesh_occluded) if features.triangles == TRIANGLES_WARP else (
+        mesh_closest, mesh_occluded)
 
     @wp.func
     def trace(scene: SceneData, o: wp.vec3, d: wp.vec3, tmax: float, origin_quad: int, origin_sphere: int,
@@ -133,7 +141,7 @@ def make_tracers(features: Features):
             mesh_limit = hit.t
             if hit.material >= 0 and hit.light >= 0:
                 mesh_limit = hit.t * (1.0 - 1.0e-5)  # the light also wins a float32 tie with a triangle
-            q = mesh_closest(scene, o, d, mesh_limit)
+            q = wp.static(closest)(scene, o, d, mesh_limit)
             if q.face >= 0:
                 hit = mesh_hit(scene, o, d, q)
                 if wp.static(HAS_SMOOTH):
@@ -154,7 +162,7 @@ def make_tracers(features: Features):
             if occluded_quads(scene, o, d, tmax, skip_quad_a, skip_quad_b):
                 return True
         if wp.static(HAS_MESH):
-            if mesh_occluded(scene, o, d, tmax):
+            if wp.static(any_hit)(scene, o, d, tmax):
                 return True
         if wp.static(HAS_SPHERES):
             if occluded_spheres(scene, o, d, tmax, origin_sphere, origin_normal):

@@ -152,11 +152,12 @@ class WideTree:
     stack_bound: int  # the most entries a closest-hit traversal can hold on its stack (siblings along a path)
 
 
-def collapse_wide(tree: BoxTree) -> WideTree:
-    """Every wide node takes its binary node's grandchildren (a leaf child stands for itself): 2-4 children.
+def collapse_wide(tree: BoxTree, width: int = WIDTH) -> WideTree:
+    """Every wide node takes the binary descendants of its binary node log2(width) levels down (a leaf stands for
+    itself): 2 to ``width`` children.
 
     Level by level, vectorised. The boxes are the binary nodes' own (already padded) float32 boxes, so the wide
-    traversal tests exactly the boxes the binary one did, only four at once."""
+    traversal tests exactly the boxes the binary one did, only ``width`` at once."""
     is_leaf = tree.count > 0
     leaf_nodes = np.flatnonzero(is_leaf)
     leaf_nodes = leaf_nodes[np.argsort(tree.start[leaf_nodes])]  # blocks in prims order
@@ -166,7 +167,7 @@ def collapse_wide(tree: BoxTree) -> WideTree:
     leaf_count = tree.count[leaf_nodes].astype(np.int64)
     lo4, hi4, ch4 = [], [], []
     if is_leaf[0]:
-        return WideTree(np.zeros((0, 4), np.float32), np.zeros((0, 4), np.int32), tree.prims, leaf_start,
+        return WideTree(np.zeros((0, width), np.float32), np.zeros((0, width), np.int32), tree.prims, leaf_start,
                         leaf_count, int(leaf_ref(0)), 0, 0)
     level = np.array([0])  # binary ids of this level's wide nodes
     bound = np.array([0])  # stack entries their traversal may already hold
@@ -174,16 +175,16 @@ def collapse_wide(tree: BoxTree) -> WideTree:
     depth, stack_bound = 0, 0
     while len(level):
         depth += 1
-        a = tree.start[level]
-        slots = np.full((len(level), WIDTH), -1, dtype=np.int64)
-        for side in (0, 1):
-            c = a + side
-            inner = ~is_leaf[c]
-            slots[:, 2 * side] = np.where(inner, tree.start[c], c)
-            slots[:, 2 * side + 1] = np.where(inner, tree.start[c] + 1, -1)
+        slots = level[:, None]
+        while slots.shape[1] < width:  # replace every inner binary node by its two children
+            used = slots >= 0
+            expand = used & ~is_leaf[np.maximum(slots, 0)]
+            first = np.where(expand, tree.start[np.maximum(slots, 0)], slots)
+            second = np.where(expand, first + 1, -1)
+            slots = np.stack([first, second], axis=2).reshape(len(level), -1)
         used = slots >= 0
         b = np.where(used, slots, 0)
-        lo = np.where(used[..., None], tree.lower[b], np.inf).astype(np.float32)  # (k, 4, 3)
+        lo = np.where(used[..., None], tree.lower[b], np.inf).astype(np.float32)  # (k, width, 3)
         hi = np.where(used[..., None], tree.upper[b], -np.inf).astype(np.float32)
         child_inner = used & ~is_leaf[b]
         ids = np.full(slots.shape, EMPTY_SLOT, dtype=np.int64)
@@ -202,13 +203,12 @@ def collapse_wide(tree: BoxTree) -> WideTree:
         bound = np.repeat(here, child_inner.sum(axis=1))
     lo = np.concatenate(lo4)
     hi = np.concatenate(hi4)
-    boxes = np.empty((len(lo), 3, 2, WIDTH), dtype=np.float32)
+    boxes = np.empty((len(lo), 3, 2, width), dtype=np.float32)
     boxes[:, :, 0, :] = lo.transpose(0, 2, 1)
     boxes[:, :, 1, :] = hi.transpose(0, 2, 1)
     child = np.concatenate(ch4).astype(np.int32)
-    return WideTree(boxes.reshape(-1, WIDTH), child, tree.prims, leaf_start, leaf_count, root=0, depth=depth,
+    return WideTree(boxes.reshape(-1, width), child, tree.prims, leaf_start, leaf_count, root=0, depth=depth,
                     stack_bound=stack_bound)
-
 
 def leaf_lanes(wide: WideTree) -> np.ndarray:
     """(leaves, 4) primitive index of each leaf block's lanes, -1 where a block holds fewer than four."""

@@ -91,6 +91,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--light-tracing", action="store_true", default=None,
                    help="caustics seen directly (light -> mirrors -> diffuse -> camera) from light paths: less noise "
                    "where the camera sees the surfaces they fall on")
+    p.add_argument("--triangles", choices=("wide", "warp"),
+                   help="triangle backend: wide (default: our watertight 4-wide box tree) or warp (Warp's wp.Mesh "
+                   "and mesh_query_ray)")
     p.add_argument("--threads", type=int, metavar="N", help="CPU threads (> 0)")
     p.add_argument("--view", choices=("radiance", "direction", "normal"), default="radiance", help="what to render (default: radiance)")
     p.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE", help="set scene parameter $NAME (repeatable)")
@@ -153,6 +156,7 @@ def _render_kwargs(args: argparse.Namespace) -> dict:
         "sampler": args.sampler,
         "light_sampling": args.light_sampling,
         "light_tracing": args.light_tracing,
+        "triangles": args.triangles,
         "threads": args.threads,
     }
     kwargs = {k: v for k, v in given.items() if v is not None}

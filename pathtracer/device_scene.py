@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from kernels.integrator import LIGHT_SAMPLINGS, RR_RULES, SAMPLERS, VIEWS, Features
+from kernels.integrator import LIGHT_SAMPLINGS, RR_RULES, SAMPLERS, TRIANGLES, VIEWS, Features
 from kernels.types import CameraData, SceneData
 from kernels.triangle import STACK_SIZE
 from pathtracer.bvh import BoxTree, WideTree, build_box_tree, collapse_wide, leaf_lanes
@@ -173,7 +173,10 @@ def quad_groups(quads: list[Quad]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 class DeviceScene:
     """Device-side copy of a scene; keeps the arrays (and the BVH) alive while kernels use them."""
 
-    def __init__(self, scene: Scene, device: str):
+    def __init__(self, scene: Scene, device: str, triangles: str = "wide"):
+        """``triangles``: "wide" (our 4-wide tree, kernels/triangle.py) or "warp" (a wp.Mesh, kernels/triangle_warp.py)."""
+        if triangles not in TRIANGLES:
+            raise RenderError(f"unknown triangle backend {triangles!r} (supported: {', '.join(TRIANGLES)})")
         self.device = device
         quads, tri = split_scene(scene)
         if tri:
@@ -199,8 +202,13 @@ class DeviceScene:
         self.points = _vec3(points, device)
         self.indices = _arr(faces, wp.int32, device)
         self.tree = None
-        d.bvh_root = -1  # an empty leaf
-        if len(faces):
+        self.mesh = None
+        d.bvh_root = -1  # an empty slot
+        d.mesh_id = wp.uint64(0)
+        if len(faces) and triangles == "warp":
+            self.mesh = wp.Mesh(points=self.points, indices=self.indices)
+            d.mesh_id = self.mesh.id
+        elif len(faces):
             self.box_pad = triangle_box_pad(points, np.asarray(scene.camera.to_world)[:3, 3])
             self.tree = collapse_wide(_triangle_tree(np.asarray(points), faces, self.box_pad))
             if self.tree.stack_bound >= STACK_SIZE:
@@ -213,7 +221,6 @@ class DeviceScene:
         soa, lane_face = leaf_soa(np.asarray(points, np.float32), faces, t) if t else (np.zeros((0, 4)), [])
         d.tri_soa = wp.array(soa.astype(np.float32), dtype=wp.vec4, device=device)
         d.tri_face = _arr(lane_face, wp.int32, device)
-        d.mesh_id = wp.uint64(0)
         d.points = self.points
         d.indices = self.indices
         d.face_material = _arr(face_material, wp.int32, device)
@@ -265,7 +272,7 @@ class DeviceScene:
 
     @staticmethod
     def features(scene: Scene, view: str = "radiance", rr: str = "throughput", sampler: str = "independent",
-                 count_rays: bool = False, light_sampling: str = "area") -> Features:
+                 count_rays: bool = False, light_sampling: str = "area", triangles: str = "wide") -> Features:
         """The compile-time features ``scene`` needs: nothing it does not use."""
         used = {s.material for s in scene.spheres} | {m.material for m in scene.meshes if len(m.faces)}
         quads, tri = split_scene(scene)
@@ -281,6 +288,7 @@ class DeviceScene:
             sampler=SAMPLERS[sampler],
             light_sampling=LIGHT_SAMPLINGS[light_sampling],
             count_rays=count_rays,
+            triangles=TRIANGLES[triangles],
         )
 
 

@@ -22,7 +22,7 @@ from typing import Callable
 import numpy as np
 import warp as wp
 
-from kernels.integrator import LIGHT_SAMPLINGS, RR_RULES, SAMPLERS, VIEWS, render_kernel
+from kernels.integrator import LIGHT_SAMPLINGS, RR_RULES, SAMPLERS, TRIANGLES, VIEWS, render_kernel
 from kernels.light_tracer import fold_pass, light_kernel
 from kernels.types import PassParams
 from pathtracer.device_scene import DeviceScene
@@ -36,6 +36,7 @@ DEFAULT_RR = "throughput"
 DEFAULT_SAMPLER = "independent"
 DEFAULT_LIGHT_SAMPLING = "area"
 DEFAULT_LIGHT_TRACING = False
+DEFAULT_TRIANGLES = "wide"  # watertight, and faster than "warp" on the CPU (examples/bench_rays.py)
 UINT32_LIMIT = 2**32
 TILES_PER_THREAD = 4  # row sets per CPU thread, taken on demand (load balancing)
 LAUNCH_SAMPLES = 1 << 15  # samples one launch aims at (~10-20 ms on a CPU core), by grouping passes
@@ -133,6 +134,8 @@ class Renderer:
     (kernels/light_tracer.py) instead of camera paths (default off; it applies only to scenes with mirrors and
     lights, and max_depth -1 or >= 3). Far less noise where the camera sees the surfaces the caustics fall on, far
     more where it sees only a sliver of them (a narrow view): light paths rarely land there.
+    triangles: "wide" (default: our watertight 4-wide box tree, kernels/triangle.py) or "warp" (Warp's wp.Mesh and
+    mesh_query_ray, kernels/triangle_warp.py: rays aimed exactly at a vertex can slip through it).
     """
 
     scene: Scene
@@ -146,6 +149,7 @@ class Renderer:
     count_rays: bool = False
     light_sampling: str | None = None
     light_tracing: bool | None = None
+    triangles: str | None = None
     compile_seconds: float = field(init=False, default=0.0)
 
     def __post_init__(self):
@@ -164,6 +168,10 @@ class Renderer:
         if light_sampling not in LIGHT_SAMPLINGS:
             raise RenderError(f"unknown light sampling {light_sampling!r} (supported: {', '.join(LIGHT_SAMPLINGS)})")
         self.light_sampling = light_sampling
+        triangles = DEFAULT_TRIANGLES if self.triangles is None else self.triangles
+        if triangles not in TRIANGLES:
+            raise RenderError(f"unknown triangle backend {triangles!r} (supported: {', '.join(TRIANGLES)})")
+        self.triangles = triangles
         depth = self.scene.integrator.max_depth if self.max_depth is None else self.max_depth
         self.max_depth = _check_int("max_depth", depth, -1)
         if self.max_depth == 0:
@@ -178,7 +186,7 @@ class Renderer:
         self.threads = min(self.threads, self.scene.height)
 
         self.features = DeviceScene.features(self.scene, self.view, self.rr, self.sampler, self.count_rays,
-                                             self.light_sampling)
+                                             self.light_sampling, self.triangles)
         possible = self.features.mirrors and self.features.lights and self.view == "radiance" and (
             self.max_depth < 0 or self.max_depth >= 3)
         wanted = DEFAULT_LIGHT_TRACING if self.light_tracing is None else bool(self.light_tracing)
@@ -193,7 +201,7 @@ class Renderer:
             wp.load_module(fold_pass.module, device=self.device)
         self.compile_seconds = time.perf_counter() - t0
         with wp.ScopedDevice(self.device):
-            self.dscene = DeviceScene(self.scene, self.device)
+            self.dscene = DeviceScene(self.scene, self.device, self.triangles)
 
     def render_passes(
         self,
@@ -435,6 +443,7 @@ def render(
     sampler: str | None = None,
     light_sampling: str | None = None,
     light_tracing: bool | None = None,
+    triangles: str | None = None,
     progress: bool = True,
     callback: Callable[[int, PassSum], object] | None = None,
     stats: dict | None = None,
@@ -449,6 +458,7 @@ def render(
     sampler: "independent" (default) or "sobol" (Owen-scrambled Sobol' points, stratified across passes).
     light_sampling: "area" (default) or "solid_angle" (rectangular lights sampled uniformly in solid angle).
     light_tracing: caustics seen directly from light paths (see ``Renderer``; default off).
+    triangles: "wide" (default) or "warp" (see ``Renderer``).
     callback(pass_index, PassSum) runs after each pass. stats, if given, receives seconds, compile_seconds,
     samples, discarded, spp, threads, device, roulette_warning (None, or why the seed roulette rule has an
     infinite variance on this scene).
@@ -458,7 +468,7 @@ def render(
     seed = scene.sampler_seed if seed is None else seed
     r = Renderer(scene, device=device, max_depth=max_depth, light_samples=light_samples, rr=rr,
                  view=view, threads=threads, sampler=sampler, light_sampling=light_sampling,
-                 light_tracing=light_tracing)
+                 light_tracing=light_tracing, triangles=triangles)
     roulette_warning = roulette_variance_warning(scene, r.rr, r.max_depth)
     if roulette_warning:  # detected and reported before any time is spent, never silently averaged
         warnings.warn(f"{scene.source}: {roulette_warning}", RuntimeWarning, stacklevel=2)

@@ -13,7 +13,8 @@ from kernels.camera import camera_ray
 from kernels.light_tracer import camera_importance
 from kernels.integrator import light_sample_scale, self_mode
 from kernels.mesh import mesh_hit, smooth_normal, sphere_hit
-from kernels.triangle import mesh_closest, mesh_occluded, ray_shear, ray_triangle
+from kernels.triangle import ray_shear, ray_triangle
+from kernels.triangle_warp import any_mesh_closest as mesh_closest, any_mesh_occluded as mesh_occluded
 from kernels.offset import offset_origin
 from kernels.quad import nearest_quad, quad_hit, ray_box, ray_quad
 from kernels.rng import rand4

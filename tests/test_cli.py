@@ -219,13 +219,13 @@ def test_all_options_reach_render(tmp_path, scene_file, fakes, capsys):
     argv = [str(scene_file), "-o", str(out), "--spp", "16", "--max-depth", "-1", "--seed", str(2**32 - 1),
             "--device", "cpu", "--light-samples", "4", "--rr", "throughput", "--threads", "3",
             "--view", "normal", "--no-progress", "--sampler", "sobol", "--light-sampling", "solid_angle",
-            "--light-tracing"]
+            "--light-tracing", "--triangles", "warp"]
     assert cli.main(argv) == 0
     (call,) = fakes.render_calls
     assert isinstance(call.pop("stats"), dict)
     assert call == dict(spp=16, max_depth=-1, seed=2**32 - 1, device="cpu", light_samples=4, rr="throughput",
                         threads=3, view="normal", progress=False, sampler="sobol", light_sampling="solid_angle",
-                        light_tracing=True)
+                        light_tracing=True, triangles="warp")
     assert np.array_equal(imageio.read_image(out), np.full((4, 5, 3), 0.25, np.float32))
     captured = capsys.readouterr()
     assert captured.err == ""

@@ -394,9 +394,9 @@ def _mesh_probe_scene(verts, faces):
     return sc
 
 
-def _shoot(device, verts, faces, o, targets):
+def _shoot(device, verts, faces, o, targets, triangles="wide"):
     """probe_mesh on the rays from ``o`` toward ``targets``: (face, t, distance to the target)."""
-    ds = DeviceScene(_mesh_probe_scene(verts, faces), device)
+    ds = DeviceScene(_mesh_probe_scene(verts, faces), device, triangles)
     d = (targets - o).astype(np.float64)
     dist = np.linalg.norm(d, axis=1)
     d32 = (d / dist[:, None]).astype(np.float32)
@@ -409,12 +409,12 @@ def _shoot(device, verts, faces, o, targets):
 _watertight_cache: dict = {}
 
 
-def _watertight_run(device, name, verts, faces, seed=0, shrink=0.0):
+def _watertight_run(device, name, verts, faces, seed=0, shrink=0.0, triangles="wide"):
     """Shoot the watertight rays (``_watertight_rays``) at a mesh. A ray fails if it misses or hits beyond its
     target (it slipped through the surface there and hit the far side). ``shrink`` > 0 (the control) unwelds the
     mesh and pulls every triangle toward its centroid by that fraction: cracks at every edge and vertex.
     Returns {kind: (rays, missed, passed through)} and the rays that failed."""
-    key = (device, name, seed, shrink)
+    key = (device, name, seed, shrink, triangles)
     if key in _watertight_cache:
         return _watertight_cache[key]
     rng = np.random.default_rng(seed)
@@ -427,12 +427,12 @@ def _watertight_run(device, name, verts, faces, seed=0, shrink=0.0):
         cen = tri.mean(axis=1, keepdims=True)
         verts = (cen + (1 - shrink) * (tri - cen)).reshape(-1, 3).astype(np.float32)
         faces = np.arange(len(verts)).reshape(-1, 3)
-    face, t, dist = _shoot(device, verts, faces, o, targets)
+    face, t, dist = _shoot(device, verts, faces, o, targets, triangles)
     miss = face < 0
     beyond = ~miss & (t > dist * (1 + 1e-5))
     counts = {k: (int((kind == k).sum()), int((miss & (kind == k)).sum()), int((beyond & (kind == k)).sum()))
               for k in ("edge", "vertex")}
-    print(f"\n[hard] {name}: " + ", ".join(f"{k}s: {n} rays, {mi} missed, {be} passed through"
+    print(f"\n[hard] {name} ({triangles}): " + ", ".join(f"{k}s: {n} rays, {mi} missed, {be} passed through"
                                           for k, (n, mi, be) in counts.items()))
     bad = np.flatnonzero(miss | beyond)
     _watertight_cache[key] = counts, (verts, faces, o[bad], targets[bad])
@@ -466,6 +466,20 @@ def test_watertight_rays_at_edges_and_vertices_stop_there(device):
         assert counts["edge"][0] >= min_edges and counts["vertex"][0] >= min_vertices
         failures[name] = {k: mi + be for k, (n, mi, be) in counts.items()}
     assert all(v == 0 for f in failures.values() for v in f.values()), failures
+
+
+def test_warp_backend_leaks_are_rare_vertex_rays_only(device):
+    """The "warp" triangle backend (wp.Mesh + mesh_query_ray) is not watertight: its slab test has no rounding
+    slack, so a few rays aimed exactly at a vertex slip through (see the docstring above). What is claimed for it,
+    and checked: every ray aimed at an edge's interior hits, and fewer than 1% of the vertex rays leak."""
+    report = {}
+    for name, m, min_edges, min_vertices in _watertight_meshes():
+        counts, _ = _watertight_run(device, name, m.vertices, m.faces, triangles="warp")
+        n_edge, mi_edge, be_edge = counts["edge"]
+        n_vert, mi_vert, be_vert = counts["vertex"]
+        report[name] = (mi_edge + be_edge, mi_vert + be_vert, n_vert)
+        assert n_edge >= min_edges and n_vert >= min_vertices
+    assert all(edge == 0 and vert < 0.01 * n for edge, vert, n in report.values()), report
 
 
 def test_watertight_check_has_power(device):

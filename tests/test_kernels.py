@@ -628,18 +628,18 @@ def _mesh_scene(vertices, faces, normals=None):
     return scene
 
 
-def _mesh_query(device, scene, o, d):
-    ds = DeviceScene(scene, device)
+def _mesh_query(device, scene, o, d, triangles="wide"):
+    ds = DeviceScene(scene, device, triangles)
     res = probes.launch(probes.probe_mesh, len(o), device,
                         [ds.data, probes.arr(o, wp.vec3, device), probes.arr(d, wp.vec3, device)],
                         [wp.int32, float, wp.vec2, wp.vec3, wp.vec3, wp.vec3])
     return res
 
 
-def _check_mesh_against_brute_force(device, verts, faces, o, d, normals=None, min_hits=0.2):
+def _check_mesh_against_brute_force(device, verts, faces, o, d, normals=None, min_hits=0.2, triangles="wide"):
     verts = np.asarray(verts, np.float32)
     scene = _mesh_scene(verts, faces, normals)
-    face, t, uv, p, ng, ns = _mesh_query(device, scene, o, d)
+    face, t, uv, p, ng, ns = _mesh_query(device, scene, o, d, triangles)
     tris = verts[faces]
     bt, bf, bu, bv, amb = moller_trumbore(o, d, tris)
     assert amb.mean() < 0.01
@@ -663,7 +663,12 @@ def _check_mesh_against_brute_force(device, verts, faces, o, d, normals=None, mi
     return scene, face, uv, ns, both
 
 
-def test_mesh_hit_random_soup(device):
+# both triangle backends: our 4-wide tree (the default) and Warp's wp.Mesh
+TRIANGLES = ["wide", "warp"]
+
+
+@pytest.mark.parametrize("triangles", TRIANGLES)
+def test_mesh_hit_random_soup(device, triangles):
     rng = np.random.default_rng(12)
     nt = 300
     centers = rng.uniform(-1, 1, (nt, 3))
@@ -673,7 +678,8 @@ def test_mesh_hit_random_soup(device):
     o = (unit(rng.normal(size=(n, 3))) * 3).astype(np.float32)
     d = f32unit(rng.uniform(-1, 1, (n, 3)) - o)
     normals = random_dirs(rng, len(verts))
-    _, face, uv, ns, both = _check_mesh_against_brute_force(device, verts, faces, o, d, normals=normals)
+    _, face, uv, ns, both = _check_mesh_against_brute_force(device, verts, faces, o, d, normals=normals,
+                                                            triangles=triangles)
     # smooth_normal interpolates the corner normals with the same weights
     corner = normals[faces[face[both]]].astype(np.float64)  # (k, 3 corners, 3)
     w = np.stack([uv[both, 0], uv[both, 1], 1 - uv[both, 0] - uv[both, 1]], axis=1)
@@ -681,7 +687,8 @@ def test_mesh_hit_random_soup(device):
     assert np.abs(ns[both] - expect).max() < 1e-4
 
 
-def test_mesh_hit_teapot(device):
+@pytest.mark.parametrize("triangles", TRIANGLES)
+def test_mesh_hit_teapot(device, triangles):
     m = trimesh.load(ROOT / "scenes" / "meshes" / "teapot.obj", process=False, force="mesh")
     verts, faces = np.asarray(m.vertices, np.float32), np.asarray(m.faces)
     rng = np.random.default_rng(13)
@@ -691,19 +698,21 @@ def test_mesh_hit_teapot(device):
     o = (mid + unit(rng.normal(size=(n, 3))) * 3).astype(np.float32)
     d = f32unit(rng.uniform(lo, hi, (n, 3)) - o)
     normals = np.asarray(m.vertex_normals, np.float64)
-    _, face, uv, ns, both = _check_mesh_against_brute_force(device, verts, faces, o, d, normals=normals)
+    _, face, uv, ns, both = _check_mesh_against_brute_force(device, verts, faces, o, d, normals=normals,
+                                                            triangles=triangles)
     corner = normals[faces[face[both]]]
     w = np.stack([uv[both, 0], uv[both, 1], 1 - uv[both, 0] - uv[both, 1]], axis=1)
     assert np.abs(ns[both] - unit((w[:, :, None] * corner).sum(axis=1))).max() < 1e-4
 
 
-def test_smooth_normal_falls_back_when_corner_normals_cancel(device):
+@pytest.mark.parametrize("triangles", TRIANGLES)
+def test_smooth_normal_falls_back_when_corner_normals_cancel(device, triangles):
     verts = np.array([[-1, -1, 0], [1, -1, 0], [0, 1, 0]], np.float64)
     normals = np.array([[0, 0, 1], [0, 0, -1], [0, 0, 0]], np.float64)
     scene = _mesh_scene(verts, [[0, 1, 2]], normals)
     # aim where u = v = 1/2 (the vertex-0/vertex-1 midpoint): the interpolated normal is 0
     o = np.float32([[0, -1, 1]])
-    face, t, uv, p, ng, ns = _mesh_query(device, scene, o, np.float32([[0, 0, -1]]))
+    face, t, uv, p, ng, ns = _mesh_query(device, scene, o, np.float32([[0, 0, -1]]), triangles)
     assert face[0] == 0 and np.abs(uv[0] - 0.5).max() < 1e-6
     assert np.abs(ns[0] - ng[0]).max() < 1e-6 and np.isfinite(ns).all()
 
@@ -718,10 +727,10 @@ def _icosphere_targets(rng):
     return verts, faces, verts.astype(np.float64), on_edges.astype(np.float32).astype(np.float64)
 
 
-def _count_misses(device, scene, o, targets):
+def _count_misses(device, scene, o, targets, triangles="wide"):
     o = o.astype(np.float32)
     d = f32unit(targets - o)
-    face, t, *_ = _mesh_query(device, scene, o, d)
+    face, t, *_ = _mesh_query(device, scene, o, d, triangles)
     hit = face >= 0
     dist = np.linalg.norm(targets - o, axis=1)
     assert np.abs(t - dist)[hit].max() < 1e-4 * dist.max()
@@ -783,8 +792,9 @@ def _hemisphere_mix(rng, n, normals):
     return w.astype(np.float32)
 
 
+@pytest.mark.parametrize("triangles", TRIANGLES)
 @pytest.mark.parametrize("scale,shift", SCALES)
-def test_offset_triangles_no_self_hits(device, scale, shift):
+def test_offset_triangles_no_self_hits(device, scale, shift, triangles):
     rng = np.random.default_rng(15)
     nt = 200
     T = np.array([shift, -0.7 * shift, 0.3 * shift])
@@ -802,7 +812,7 @@ def test_offset_triangles_no_self_hits(device, scale, shift):
     e1 = verts[faces[pick, 1]].astype(np.float64) - verts[faces[pick, 0]]
     e2 = verts[faces[pick, 2]].astype(np.float64) - verts[faces[pick, 0]]
     w = _hemisphere_mix(rng, n, unit(np.cross(e1, e2)))
-    ds = DeviceScene(scene, device)
+    ds = DeviceScene(scene, device, triangles)
 
     def spawn(use_offset):
         return probes.launch(

@@ -31,30 +31,37 @@ SPP = 128  # per batch
 T_MAX = stats.t_isf2(stats.normal_sf2(4.0), B - 1)  # |t| with the two-sided p-value of |z| = 4: about 5.6
 
 
-def batch_stats(scene, device, max_depth, spp=SPP, seeds=range(B), light_tracing=False):
-    r = pathtracer.Renderer(scene, device=device, max_depth=max_depth, light_tracing=light_tracing)
+def batch_stats(scene, device, max_depth, spp=SPP, seeds=range(B), light_tracing=False, triangles=None):
+    r = pathtracer.Renderer(scene, device=device, max_depth=max_depth, light_tracing=light_tracing,
+                            triangles=triangles)
     imgs = np.stack([r.render_passes(seed=s, count=spp).mean.astype(np.float64) for s in seeds])
     return imgs.mean(axis=0), imgs.var(axis=0, ddof=1) / len(imgs), imgs
 
 
 LIGHT_TRACED = [n for n in sorted(META["refs"]) if not n.endswith("_d2") and n != "cornell_box"]  # have mirrors
+WITH_MESHES = [n for n in sorted(META["refs"]) if n.startswith("teapot")]  # for the "warp" triangle backend
+CASES = ([(n, False, None) for n in sorted(META["refs"])] + [(n, True, None) for n in LIGHT_TRACED]
+         + [(n, False, "warp") for n in WITH_MESHES])
+IDS = ([n for n in sorted(META["refs"])] + [f"{n}-light_tracing" for n in LIGHT_TRACED]
+       + [f"{n}-warp_triangles" for n in WITH_MESHES])
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name,light_tracing", [(n, False) for n in sorted(META["refs"])]
-                         + [(n, True) for n in LIGHT_TRACED],
-                         ids=[n for n in sorted(META["refs"])] + [f"{n}-light_tracing" for n in LIGHT_TRACED])
-def test_agrees_with_mitsuba_reference(device, name, light_tracing):
-    """With light tracing too on the scenes with mirrors: the caustics seen directly then come from light paths."""
+@pytest.mark.parametrize("name,light_tracing,triangles", CASES, ids=IDS)
+def test_agrees_with_mitsuba_reference(device, name, light_tracing, triangles):
+    """With light tracing too on the scenes with mirrors: the caustics seen directly then come from light paths;
+    and with Warp's wp.Mesh as the triangle backend on the scenes with a mesh."""
     info = META["refs"][name]
     ref = pathtracer.read_image(REFS / f"{name}.exr").astype(np.float64)
     ref_var = pathtracer.read_image(REFS / f"{name}_var.exr").astype(np.float64)
     scene = pathtracer.load_file(Path(__file__).parents[1] / info["scene"], width=META["width"],
                                  height=META["height"])
     depth = info["max_depth"] if info["max_depth"] is not None else scene.integrator.max_depth
-    ours, var, imgs = batch_stats(scene, device, depth, light_tracing=light_tracing)
+    ours, var, imgs = batch_stats(scene, device, depth, light_tracing=light_tracing, triangles=triangles)
     if light_tracing:
         name = f"{name} (light tracing)"
+    if triangles:
+        name = f"{name} ({triangles} triangles)"
 
     var_sum = var + ref_var
     diff = ours - ref

@@ -319,6 +319,26 @@ def test_quads_only_where_the_scene_has_them_and_no_bvh_code_without_triangles()
     assert not found, f"BVH code in a variant without triangles: {found}"
 
 
+WIDE_CODE = ("wide_entry", "leaf_closest", "(var_scene).bvh_boxes", "(var_scene).tri_soa")
+WARP_CODE = ("mesh_query_ray", "(var_scene).mesh_id")
+
+
+def test_triangle_backend_compiles_only_its_own_traversal():
+    """triangles="wide" (default) carries our 4-wide tree and no wp.Mesh query; "warp" the reverse."""
+    scene = box_scene(8, 8)
+    wide, warp = Renderer(scene, device="cpu"), Renderer(scene, device="cpu", triangles="warp")
+    assert wide.triangles == "wide" and wide.features != warp.features
+    src_wide, src_warp = generated_source(wide.kernel), generated_source(warp.kernel)
+    assert all(s in src_wide for s in WIDE_CODE) and not any(s in src_wide for s in WARP_CODE)
+    assert all(s in src_warp for s in WARP_CODE) and not any(s in src_warp for s in WIDE_CODE)
+    # and the two render the same scene alike (same random numbers; only a vertex-aimed ray could differ)
+    a = wide.render_passes(seed=3, count=4).mean
+    b = warp.render_passes(seed=3, count=4).mean
+    assert np.mean(np.abs(a - b) > 1e-4) < 1e-3
+    with pytest.raises(pathtracer.RenderError, match="triangle backend"):
+        Renderer(scene, device="cpu", triangles="embree")
+
+
 # ------------------------------------------------------------------------------------------------
 # non-finite samples
 
