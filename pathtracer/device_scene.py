@@ -170,6 +170,39 @@ def quad_groups(quads: list[Quad]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return end, lo, hi
 
 
+class TriangleData:
+    """The triangle part of a ``SceneData``, filled in place: vertices and faces, and either our 4-wide tree
+    ("wide") or a ``wp.Mesh`` ("warp"); keeps the device arrays alive. ``camera_origin`` enters the boxes' padding
+    (``triangle_box_pad``)."""
+
+    def __init__(self, d: SceneData, points: np.ndarray, faces: np.ndarray, camera_origin, device: str,
+                 triangles: str = "wide", source: str = "scene"):
+        self.points = _vec3(points, device)
+        self.indices = _arr(faces, wp.int32, device)
+        self.tree = None
+        self.mesh = None
+        d.bvh_root = -1  # an empty slot
+        d.mesh_id = wp.uint64(0)
+        if len(faces) and triangles == "warp":
+            self.mesh = wp.Mesh(points=self.points, indices=self.indices)
+            d.mesh_id = self.mesh.id
+        elif len(faces):
+            self.box_pad = triangle_box_pad(points, camera_origin)
+            self.tree = collapse_wide(_triangle_tree(np.asarray(points), faces, self.box_pad))
+            if self.tree.stack_bound >= STACK_SIZE:
+                raise RenderError(f"{source}: the triangle tree is too deep for the traversal's stack "
+                                  f"({self.tree.stack_bound} entries, {STACK_SIZE} available)")
+            d.bvh_root = self.tree.root
+        t = self.tree
+        d.bvh_boxes = wp.array(t.boxes if t else np.zeros((0, 4), np.float32), dtype=wp.vec4, device=device)
+        d.bvh_child = wp.array(t.child if t else np.zeros((0, 4), np.int32), dtype=wp.vec4i, device=device)
+        soa, lane_face = leaf_soa(np.asarray(points, np.float32), faces, t) if t else (np.zeros((0, 4)), [])
+        d.tri_soa = wp.array(soa.astype(np.float32), dtype=wp.vec4, device=device)
+        d.tri_face = _arr(lane_face, wp.int32, device)
+        d.points = self.points
+        d.indices = self.indices
+
+
 class DeviceScene:
     """Device-side copy of a scene; keeps the arrays (and the BVH) alive while kernels use them."""
 
@@ -199,30 +232,9 @@ class DeviceScene:
             corner_normals = np.zeros((0, 3))
 
         d = SceneData()
-        self.points = _vec3(points, device)
-        self.indices = _arr(faces, wp.int32, device)
-        self.tree = None
-        self.mesh = None
-        d.bvh_root = -1  # an empty slot
-        d.mesh_id = wp.uint64(0)
-        if len(faces) and triangles == "warp":
-            self.mesh = wp.Mesh(points=self.points, indices=self.indices)
-            d.mesh_id = self.mesh.id
-        elif len(faces):
-            self.box_pad = triangle_box_pad(points, np.asarray(scene.camera.to_world)[:3, 3])
-            self.tree = collapse_wide(_triangle_tree(np.asarray(points), faces, self.box_pad))
-            if self.tree.stack_bound >= STACK_SIZE:
-                raise RenderError(f"{scene.source}: the triangle tree is too deep for the traversal's stack "
-                                  f"({self.tree.stack_bound} entries, {STACK_SIZE} available)")
-            d.bvh_root = self.tree.root
-        t = self.tree
-        d.bvh_boxes = wp.array(t.boxes if t else np.zeros((0, 4), np.float32), dtype=wp.vec4, device=device)
-        d.bvh_child = wp.array(t.child if t else np.zeros((0, 4), np.int32), dtype=wp.vec4i, device=device)
-        soa, lane_face = leaf_soa(np.asarray(points, np.float32), faces, t) if t else (np.zeros((0, 4)), [])
-        d.tri_soa = wp.array(soa.astype(np.float32), dtype=wp.vec4, device=device)
-        d.tri_face = _arr(lane_face, wp.int32, device)
-        d.points = self.points
-        d.indices = self.indices
+        self.triangles = TriangleData(d, points, faces, np.asarray(scene.camera.to_world)[:3, 3], device, triangles,
+                                      scene.source)
+        self.tree = self.triangles.tree
         d.face_material = _arr(face_material, wp.int32, device)
         d.face_light = _arr(face_light, wp.int32, device)
         d.corner_normals = _vec3(corner_normals, device)
