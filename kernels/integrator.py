@@ -29,7 +29,7 @@ from kernels.triangle import mesh_closest, mesh_occluded
 from kernels.triangle_warp import warp_mesh_closest, warp_mesh_occluded
 from kernels.offset import max_abs, offset_origin
 from kernels.quad import nearest_quad, occluded_quads, quad_hit
-from kernels.sobol import independent4, padded_sobol4
+from kernels.sobol import independent4, padded_sobol4, replicate_seed
 from kernels.sampling import reflect, sample_cosine_around, sample_parallelogram
 from kernels.sphrect import sample_spherical_rectangle
 from kernels.sphere import SELF_FAR, SELF_NONE, SELF_SKIP, ray_sphere
@@ -184,15 +184,18 @@ def make_render_kernel(features: Features):
     RR = features.rr
     COUNT_RAYS = features.count_rays
     SOLID_ANGLE = features.light_sampling == LIGHT_SOLID_ANGLE
-    draw4 = padded_sobol4 if features.sampler == SAMPLER_SOBOL else independent4  # picked at compile time
+    SOBOL = features.sampler == SAMPLER_SOBOL
+    draw4 = padded_sobol4 if SOBOL else independent4  # picked at compile time
     LIGHT_TRACING = features.light_tracing
 
     trace, occluded = make_tracers(features)
 
     @wp.func
-    def Li(scene: SceneData, cam: CameraData, params: PassParams, col: int, row: int, pass_index: wp.uint32) -> PathSample:
-        """One camera path through pixel (col, row) for pass ``pass_index``: the radiance it carries."""
-        key = wp.vec3ui(wp.uint32(row * cam.width + col), pass_index, params.seed)
+    def Li(scene: SceneData, cam: CameraData, params: PassParams, col: int, row: int, sample_index: wp.uint32,
+           seed: wp.uint32) -> PathSample:
+        """One camera path through pixel (col, row): sample ``sample_index`` of the sequence of ``seed``; the
+        radiance it carries."""
+        key = wp.vec3ui(wp.uint32(row * cam.width + col), sample_index, seed)
 
         # ---------------- camera ray ----------------
         jitter = wp.static(draw4)(key, wp.uint32(0), 0)
@@ -368,6 +371,7 @@ def make_render_kernel(features: Features):
         # outputs
         accum: wp.array(dtype=wp.vec3d),
         accum_sq: wp.array(dtype=wp.vec3d),
+        accum_rep: wp.array(dtype=wp.vec3d),
         discarded: wp.array(dtype=wp.int32),
         ray_count: wp.array(dtype=wp.int64),
     ):
@@ -384,12 +388,25 @@ def make_render_kernel(features: Features):
         total_sq = accum_sq[pixel]
         bad = int(0)
         rays = wp.int64(0)
+        npix = cam.width * cam.height
         for k in range(params.pass_count):
-            sample = Li(scene, cam, params, col, row, params.pass_index + wp.uint32(k))
+            # pass p belongs to replicate p mod R; with Sobol' it is point p div R of that replicate's own
+            # scramble (seed hashed with the replicate), so the R replicates are independent randomised QMC
+            # estimates whose spread is an unbiased error estimate (kernels/sobol.py: replicate_seed)
+            p = params.pass_index + wp.uint32(k)
+            rep = p % wp.uint32(params.replicates)
+            sample_index = p
+            seed = params.seed
+            if wp.static(SOBOL):
+                sample_index = p / wp.uint32(params.replicates)
+                seed = replicate_seed(params.seed, rep)
+            sample = Li(scene, cam, params, col, row, sample_index, seed)
             if wp.isfinite(sample.L):
                 L64 = wp.vec3d(sample.L)
                 total = total + L64
                 total_sq = total_sq + wp.cw_mul(L64, L64)
+                slot = int(rep) * npix + pixel
+                accum_rep[slot] = accum_rep[slot] + L64
             else:
                 bad += 1  # dropped and counted, never averaged into the image
             rays += sample.rays

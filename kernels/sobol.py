@@ -220,3 +220,13 @@ def padded_sobol4(key: wp.vec3ui, dim: wp.uint32, depth: int) -> wp.vec4:
 def independent4(key: wp.vec3ui, dim: wp.uint32, depth: int) -> wp.vec4:
     """``rand4`` with ``padded_sobol4``'s signature (the integrator picks one of the two at compile time)."""
     return rand4(key, dim)
+
+
+_REPLICATE_SALT = wp.constant(wp.uint32(0x52E9C4A7))
+
+
+@wp.func
+def replicate_seed(seed: wp.uint32, replicate: wp.uint32) -> wp.uint32:
+    """The scramble seed of replicate ``replicate`` of ``seed``: an independent randomisation of the same
+    Sobol' sequence (Owen 1997: independent replicates of a scrambled net give an unbiased variance estimate)."""
+    return hash_u32(seed ^ hash_u32(replicate ^ _REPLICATE_SALT))

@@ -79,6 +79,7 @@ class PassParams:
     rr_depth: int
     light_samples: int
     hide_emitters: int
+    replicates: int  # R: pass p is a sample of replicate p mod R (its own Sobol' scramble)
 
 
 @wp.struct

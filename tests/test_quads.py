@@ -409,10 +409,11 @@ def test_quads_render_as_the_triangles_did(path):
         a, b = rend(scene, **kw), rend(tri, **kw)
         differ = (np.abs(a - b) > 1e-5 * np.maximum(1, np.abs(b))).any(axis=2)
         assert differ.mean() <= 0.01, (kw, differ.mean())
-    # radiance: per-pixel z-test with the estimator's own variance, and the image means
+    # radiance: per-pixel z-test with the estimator's own variance (16 replicates: 15 degrees of freedom per
+    # pixel, not the default 3), and the image means
     for depth in (4, -1):
-        ra = Renderer(scene, device="cpu", max_depth=depth).render_passes(seed=3, count=64)
-        rb = Renderer(tri, device="cpu", max_depth=depth).render_passes(seed=4, count=64)
+        ra = Renderer(scene, device="cpu", max_depth=depth, replicates=16).render_passes(seed=3, count=64)
+        rb = Renderer(tri, device="cpu", max_depth=depth, replicates=16).render_passes(seed=4, count=64)
         var = ra.variance_of_mean + rb.variance_of_mean
         z = (ra.mean - rb.mean) / np.sqrt(var + 1e-12)
         frac = (np.abs(z) <= 4.0).mean()

@@ -13,7 +13,7 @@ import warp as wp
 
 import pathtracer
 from helpers import add_sphere, make_scene, material, square
-from kernels.integrator import RR_THROUGHPUT, VIEW_RADIANCE, Features
+from kernels.integrator import RR_THROUGHPUT, SAMPLER_SOBOL, VIEW_RADIANCE, Features
 from pathtracer.device_scene import DeviceScene
 from pathtracer.errors import RenderError
 from pathtracer.render import PassSum, Renderer
@@ -79,6 +79,9 @@ def test_sums_do_not_depend_on_threads_tiles_or_passes_per_launch():
     for other in runs[1:]:
         assert other.passes == 37
         assert np.array_equal(runs[0].sum, other.sum) and np.array_equal(runs[0].sum_sq, other.sum_sq)
+        assert np.array_equal(runs[0].rep_sum, other.rep_sum) and np.array_equal(runs[0].rep_passes, other.rep_passes)
+    # passes 3..39 into 4 replicates by pass mod 4: 10, 9, 9, 9 of them
+    assert runs[0].rep_passes.tolist() == [9, 9, 9, 10]
 
 
 def test_work_scheduler_runs_each_tile_in_order_and_balances():
@@ -183,10 +186,59 @@ def test_passsum_merging(device):
     for m, w in ((merged.sum, whole.sum), (merged.sum_sq, whole.sum_sq)):
         assert (np.abs(m - w) <= 14 * U32 * np.abs(w) + 1e-30).all()
     assert np.abs(merged.mean - whole.mean).max() <= 14 * U32 * np.abs(whole.mean).max()
+    assert (np.abs(merged.rep_sum - whole.rep_sum) <= 14 * U32 * np.abs(whole.rep_sum) + 1e-30).all()
+    assert merged.rep_passes.tolist() == whole.rep_passes.tolist() == [2, 2, 2, 2]
+    assert merged.estimator == whole.estimator == "replicates"  # the default sampler is Sobol'
     # the variance estimate of the merged sums is finite and equals the one-call one to rounding
+    assert np.isfinite(whole.variance_of_mean).all()
     assert np.allclose(merged.variance_of_mean, whole.variance_of_mean, rtol=1e-3, atol=1e-9)
+    # sums of different samplers or replicate counts do not merge
+    with pytest.raises(ValueError, match="samplers"):
+        first + Renderer(scene, device=device, sampler="independent").render_passes(seed=11, first_pass=4, count=4)
+    with pytest.raises(ValueError, match="replicates"):
+        first + Renderer(scene, device=device, replicates=2).render_passes(seed=11, first_pass=4, count=4)
     # a 1-pass sum has no variance estimate
     assert np.isinf(r.render_passes(seed=11, count=1).variance_of_mean).all()
+
+
+def _seed_spread(scene, sampler, seeds=32, spp=32, replicates=4):
+    """Per pixel and channel: the mean over seeds of the estimated variance of the mean, the variance of the mean
+    across seeds (the truth it estimates), and the per-pass estimate."""
+    r = Renderer(scene, device="cpu", sampler=sampler, replicates=replicates)
+    runs = [r.render_passes(seed=s, count=spp) for s in range(seeds)]
+    means = np.stack([x.mean.astype(np.float64) for x in runs])
+    est = np.stack([x.variance_of_mean for x in runs])
+    per_pass = np.stack([PassSum._var_of_mean(x.sum, x.sum_sq, x.passes) for x in runs])
+    return est.mean(axis=0), means.var(axis=0, ddof=1), per_pass.mean(axis=0)
+
+
+def _z_ratio(est, truth):
+    """z of mean(est - truth) over pixel channels, with its standard error from their spread."""
+    d = (est - truth).ravel()
+    return d.mean() / (d.std(ddof=1) / np.sqrt(d.size)), est.mean() / truth.mean()
+
+
+def test_replicate_variance_estimate_is_unbiased_with_sobol():
+    """With the default Sobol' sampler the variance of a pixel's mean, estimated from its 4 replicates, agrees on
+    average with the actual spread of the mean over 32 seeds (z of the mean difference over the pixel channels, with
+    its standard error from their own spread, within 4). Control: the spread of the stratified passes themselves
+    over-estimates it (the estimate the replicates replace)."""
+    scene = box_scene(32, 24)
+    est, truth, per_pass = _seed_spread(scene, "sobol")
+    z, ratio = _z_ratio(est, truth)
+    z_pass, ratio_pass = _z_ratio(per_pass, truth)
+    print(f"\n[replicates] estimate / truth {ratio:.3f} (z {z:+.2f}); per-pass estimate / truth {ratio_pass:.3f} "
+          f"(z {z_pass:+.2f})")
+    assert abs(z) <= 4.0
+    assert z_pass > 4.0
+
+
+def test_replicate_variance_estimate_is_unbiased_with_independent_sampling():
+    """The same with independent sampling, where the per-pass estimate (the one used there) is exact too."""
+    scene = box_scene(24, 16)
+    est, truth, per_pass = _seed_spread(scene, "independent")
+    assert abs(_z_ratio(est, truth)[0]) <= 4.0
+    assert abs(_z_ratio(per_pass, truth)[0]) <= 4.0
 
 
 def test_callback_and_early_stop(device):
@@ -229,6 +281,8 @@ BAD_OPTIONS = [
     {"seed": 2**32},
     {"threads": 0},
     {"light_samples": 0},
+    {"replicates": 0},
+    {"replicates": 2.0},
 ]
 
 
@@ -277,10 +331,10 @@ def generated_source(kernel) -> str:
 
 def test_sphere_free_scene_gets_a_kernel_without_sphere_code():
     scene = box_scene(8, 8)
-    f = DeviceScene.features(scene)
+    f = DeviceScene.features(scene, sampler="sobol")
     assert f == Features(meshes=True, spheres=False, mirrors=False, smooth_normals=False, lights=True,
-                         view=VIEW_RADIANCE, rr=RR_THROUGHPUT)
-    r = Renderer(scene, device="cpu")
+                         view=VIEW_RADIANCE, rr=RR_THROUGHPUT, sampler=SAMPLER_SOBOL)
+    r = Renderer(scene, device="cpu")  # the default sampler: Sobol'
     assert r.features == f
     src = generated_source(r.kernel)
     assert "render_pass" in src
