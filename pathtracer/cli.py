@@ -10,9 +10,11 @@ from __future__ import annotations
 
 import argparse
 import inspect
+import json
 import os
 import re
 import sys
+import tempfile
 import time
 import warnings
 
@@ -84,13 +86,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--light-samples", type=int, metavar="K", help="next-event samples per light (> 0)")
     p.add_argument("--rr", choices=("seed", "throughput"), help="Russian roulette: throughput (Mitsuba's rule) or seed")
     p.add_argument("--sampler", choices=("independent", "sobol"),
-                   help="random numbers: independent (default) or sobol (Owen-scrambled, stratified across passes)")
+                   help="random numbers: sobol (default: Owen-scrambled, stratified across passes, in 4 independent "
+                   "replicates) or independent")
     p.add_argument("--light-sampling", choices=("area", "solid_angle"),
                    help="light samples: area (default, uniform on the light) or solid_angle (uniform in the solid "
                    "angle of rectangular lights)")
-    p.add_argument("--light-tracing", action="store_true", default=None,
-                   help="caustics seen directly (light -> mirrors -> diffuse -> camera) from light paths: less noise "
-                   "where the camera sees the surfaces they fall on")
+    p.add_argument("--light-tracing", nargs="?", const="on", choices=("auto", "on", "off"), default=None,
+                   help="caustics seen directly (light -> mirrors -> diffuse -> camera) from light paths: auto "
+                   "(default: a pilot of both decides, and counts toward the image), on (also the flag alone), off")
+    p.add_argument("--stats", metavar="PATH.json", help="write the render's statistics (times, samples, estimated "
+                   "relMSE, the estimator used) as JSON")
     p.add_argument("--triangles", choices=("wide", "warp"),
                    help="triangle backend: wide (default: our watertight 4-wide box tree) or warp (Warp's wp.Mesh "
                    "and mesh_query_ray)")
@@ -116,6 +121,10 @@ def validate(args: argparse.Namespace) -> dict[str, str]:
         raise UsageError(f"--seed must be in [0, 2**32), got {args.seed}")
     if args.device is not None and not _DEVICE_RE.match(args.device):
         raise UsageError(f"unknown device {args.device!r}; expected cpu, cuda or cuda:N")
+    if args.stats is not None:
+        stats_dir = os.path.dirname(os.path.abspath(args.stats))
+        if os.path.isdir(args.stats) or not os.path.isdir(stats_dir) or not os.access(stats_dir, os.W_OK | os.X_OK):
+            raise UsageError(f"{args.stats}: cannot write statistics there")
 
     params: dict[str, str] = {}
     for item in args.defines:
@@ -155,7 +164,7 @@ def _render_kwargs(args: argparse.Namespace) -> dict:
         "rr": args.rr,
         "sampler": args.sampler,
         "light_sampling": args.light_sampling,
-        "light_tracing": args.light_tracing,
+        "light_tracing": {None: None, "auto": "auto", "on": True, "off": False}[args.light_tracing],
         "triangles": args.triangles,
         "threads": args.threads,
     }
@@ -198,7 +207,22 @@ def _summary(out: str, image, spp, device, seconds: float, compile_seconds, samp
     return f"wrote {out}: " + ", ".join(parts)
 
 
-def run(args: argparse.Namespace) -> int:
+def write_stats(path: str, stats: dict) -> None:
+    """The statistics as JSON, written to a temporary file and renamed (never a partial file)."""
+    directory = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".tmp", dir=directory)
+    try:
+        with os.fdopen(fd, "w") as f:
+            json.dump(stats, f, indent=1, default=str)
+            f.write("\n")
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
+
+
+def run(args: argparse.Namespace, t_start: float | None = None) -> int:
     import pathtracer
     from pathtracer.errors import PathtracerError
     from pathtracer.imageio import write_image
@@ -218,6 +242,12 @@ def run(args: argparse.Namespace) -> int:
             image = pathtracer.render(scene, **kwargs)
         elapsed = time.perf_counter() - t0
         write_image(args.output, image, display=args.view != "radiance")
+        if args.stats is not None:
+            stats = dict(stats or {})
+            if t_start is not None:
+                stats["wall_seconds"] = time.perf_counter() - t_start  # from the command's start to the image written
+            stats.update(scene=args.scene, output=args.output)
+            write_stats(args.stats, stats)
     except PathtracerError as e:
         return _error(_one_line(e))
     except OSError as e:  # e.g. an unreadable scene file the loader did not wrap
@@ -242,12 +272,13 @@ def run(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit status (``pathtracer = "pathtracer.cli:main"``)."""
+    t_start = time.perf_counter()
     try:
         try:
             args = build_parser().parse_args(argv)
         except SystemExit as e:  # --help / --version
             return e.code if isinstance(e.code, int) else EXIT_OK
-        return run(args)
+        return run(args, t_start)
     except UsageError as e:
         return _error(str(e))
     except KeyboardInterrupt:

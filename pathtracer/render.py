@@ -245,6 +245,7 @@ class Renderer:
         possible = self.features.mirrors and self.features.lights and self.view == "radiance" and (
             self.max_depth < 0 or self.max_depth >= 3)
         wanted = DEFAULT_LIGHT_TRACING if self.light_tracing is None else bool(self.light_tracing)
+        self.light_tracing_possible = possible
         self.light_tracing = wanted and possible
         self.features = dataclasses.replace(self.features, light_tracing=self.light_tracing)
         self.kernel = render_kernel(self.features)
@@ -506,7 +507,7 @@ def render(
     view: str = "radiance",
     sampler: str | None = None,
     light_sampling: str | None = None,
-    light_tracing: bool | None = None,
+    light_tracing: bool | str | None = None,
     triangles: str | None = None,
     replicates: int | None = None,
     progress: bool = True,
@@ -522,30 +523,58 @@ def render(
     after the first bounce). threads: CPU worker threads (default: all cores); the image does not depend on it. view: "radiance", "direction" or "normal".
     sampler: "independent" (default) or "sobol" (Owen-scrambled Sobol' points, stratified across passes).
     light_sampling: "area" (default) or "solid_angle" (rectangular lights sampled uniformly in solid angle).
-    light_tracing: caustics seen directly from light paths (see ``Renderer``; default off).
+    light_tracing: caustics seen directly from light paths (see ``Renderer``): True, False, or None / "auto"
+    (default): where the scene allows it, a pilot of 1/16 of the passes with and without decides, and counts
+    toward the image (pathtracer/estimator.py). With a callback, auto means off.
     triangles: "wide" (default) or "warp" (see ``Renderer``).
     replicates: independent Sobol' scrambles the passes are dealt to (pass p to p mod R; default 4), whose spread
     is the error estimate.
-    callback(pass_index, PassSum) runs after each pass. stats, if given, receives seconds, compile_seconds,
-    samples, discarded, spp, threads, device, roulette_warning (None, or why the seed roulette rule has an
-    infinite variance on this scene).
+    callback(pass_index, PassSum) runs after each pass. stats, if given, receives spp, render_seconds (kernels
+    only; also as seconds), compile_seconds, wall_seconds (this call), samples, samples_per_second,
+    relmse_estimate (the image's estimated relMSE, ``PassSum.relmse_estimate``), discarded, config (the estimator
+    used, and the pilot's figures when "auto" ran one), threads, device, roulette_warning (None, or why the seed
+    roulette rule has an infinite variance on this scene).
     """
+    t_wall = time.perf_counter()
     spp = scene.spp if spp is None else spp
     spp = _check_int("spp", spp, 1)
     seed = scene.sampler_seed if seed is None else seed
-    r = Renderer(scene, device=device, max_depth=max_depth, light_samples=light_samples, rr=rr,
-                 view=view, threads=threads, sampler=sampler, light_sampling=light_sampling,
-                 light_tracing=light_tracing, triangles=triangles, replicates=replicates)
+    seed = _check_int("seed", seed, 0, UINT32_LIMIT)
+    auto = light_tracing is None or light_tracing == "auto"
+    opts = dict(device=device, max_depth=max_depth, light_samples=light_samples, rr=rr, view=view, threads=threads,
+                sampler=sampler, light_sampling=light_sampling, triangles=triangles, replicates=replicates)
+    r = Renderer(scene, light_tracing=False if auto else bool(light_tracing), **opts)
     roulette_warning = roulette_variance_warning(scene, r.rr, r.max_depth)
     if roulette_warning:  # detected and reported before any time is spent, never silently averaged
         warnings.warn(f"{scene.source}: {roulette_warning}", RuntimeWarning, stacklevel=2)
-    sums = r.render_passes(seed=seed, first_pass=0, count=spp, progress=progress, callback=callback)
-    if sums.discarded:
-        warnings.warn(f"{scene.source}: {sums.discarded} non-finite samples were discarded", RuntimeWarning,
+    from pathtracer import estimator  # (imports render.py itself)
+
+    compile_seconds = r.compile_seconds
+    if auto and callback is None and r.light_tracing_possible and estimator.pilot_passes(spp, r.replicates):
+        traced = Renderer(scene, light_tracing=True, **opts)
+        compile_seconds += traced.compile_seconds
+        try:
+            result = estimator.render_auto(r, traced, seed, spp, progress=progress)
+        finally:
+            traced.close()
+        config_extra = result.config
+    else:
+        result = r.render_passes(seed=seed, first_pass=0, count=spp, progress=progress, callback=callback)
+        config_extra = {"light_tracing": r.light_tracing}
+    r.close()
+    if result.discarded:
+        warnings.warn(f"{scene.source}: {result.discarded} non-finite samples were discarded", RuntimeWarning,
                       stacklevel=2)
     if stats is not None:
-        stats.update(seconds=sums.seconds, compile_seconds=r.compile_seconds,
-                     samples=sums.passes * scene.width * scene.height, discarded=sums.discarded,
-                     spp=sums.passes, threads=r.threads, device=r.device,
-                     roulette_warning=roulette_warning)
-    return sums.mean
+        config = {"sampler": r.sampler, "replicates": r.replicates, "light_samples": r.light_samples,
+                  "light_sampling": r.light_sampling, "rr": r.rr, "max_depth": r.max_depth, "triangles": r.triangles,
+                  "light_tracing_choice": "auto" if auto else "fixed"}
+        config.update(config_extra)
+        pixels = scene.width * scene.height
+        seconds = result.seconds
+        stats.update(spp=result.passes, render_seconds=seconds, seconds=seconds, compile_seconds=compile_seconds,
+                     wall_seconds=time.perf_counter() - t_wall,
+                     samples=result.passes * pixels, samples_per_second=result.passes * pixels / max(seconds, 1e-12),
+                     relmse_estimate=result.relmse_estimate, discarded=result.discarded, config=config,
+                     threads=r.threads, device=r.device, roulette_warning=roulette_warning)
+    return result.mean

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import subprocess
@@ -119,11 +120,13 @@ SUBPROCESS_ERRORS = [
     (["{scene}", "-o", "{tmp}/missing/a.exr"], r"output directory .*missing does not exist"),
     (["{tmp}/nope.xml", "-o", "{tmp}/a.exr"], r"nope\.xml: cannot read scene: no such file"),
     (["{scene}", "-o", "{tmp}/a.exr", "--spp", "many"], r"argument --spp: invalid int value: 'many'"),
+    (["{scene}", "-o", "{tmp}/a.exr", "--stats", "{tmp}/missing/s.json"], r"s\.json: cannot write statistics there"),
+    (["{scene}", "-o", "{tmp}/a.exr", "--light-tracing", "maybe"], r"argument --light-tracing: invalid choice"),
 ]
 
 
 SUBPROCESS_IDS = ["no-output", "spp", "max-depth", "seed", "device", "define", "extension", "missing-dir",
-                  "missing-scene", "argparse-type"]
+                  "missing-scene", "argparse-type", "stats-dir", "light-tracing-choice"]
 
 
 @pytest.mark.parametrize("argv,expect", SUBPROCESS_ERRORS, ids=SUBPROCESS_IDS)
@@ -219,7 +222,7 @@ def test_all_options_reach_render(tmp_path, scene_file, fakes, capsys):
     argv = [str(scene_file), "-o", str(out), "--spp", "16", "--max-depth", "-1", "--seed", str(2**32 - 1),
             "--device", "cpu", "--light-samples", "4", "--rr", "throughput", "--threads", "3",
             "--view", "normal", "--no-progress", "--sampler", "sobol", "--light-sampling", "solid_angle",
-            "--light-tracing", "--triangles", "warp"]
+            "--light-tracing", "--triangles", "warp", "--stats", str(tmp_path / "s.json")]
     assert cli.main(argv) == 0
     (call,) = fakes.render_calls
     assert isinstance(call.pop("stats"), dict)
@@ -227,6 +230,8 @@ def test_all_options_reach_render(tmp_path, scene_file, fakes, capsys):
                         threads=3, view="normal", progress=False, sampler="sobol", light_sampling="solid_angle",
                         light_tracing=True, triangles="warp")
     assert np.array_equal(imageio.read_image(out), np.full((4, 5, 3), 0.25, np.float32))
+    written = json.loads((tmp_path / "s.json").read_text())  # what render() put in its stats, plus the command's
+    assert written["samples"] == 5 * 4 * 16 and written["wall_seconds"] > 0 and written["output"] == str(out)
     captured = capsys.readouterr()
     assert captured.err == ""
     # 5*4*16 = 320 samples in 0.5 s -> 0.00064 M samples/s
@@ -385,6 +390,25 @@ def test_real_render_through_cli(tmp_path, scene_file, monkeypatch, capsys):
                         r"[0-9.]+ M samples/s\n", captured.out), captured.out
     img = imageio.read_image(out)
     assert img.shape == (12, 16, 3) and np.all(np.isfinite(img)) and img.max() > 0
+
+
+def test_stats_json_from_a_real_render(tmp_path, scene_file, monkeypatch, capsys):
+    """--stats writes the issue's fields, with values that agree with each other and with the image."""
+    monkeypatch.setattr(pathtracer, "load_file", lambda path, **params: _tiny_scene_model(), raising=False)
+    out, path = tmp_path / "real.exr", tmp_path / "stats.json"
+    rc = cli.main([str(scene_file), "-o", str(out), "--spp", "16", "--device", "cpu", "--no-progress",
+                   "--stats", str(path)])
+    assert rc == 0, capsys.readouterr().err
+    st = json.loads(path.read_text())
+    for key in ("spp", "render_seconds", "compile_seconds", "wall_seconds", "samples_per_second", "relmse_estimate",
+                "discarded", "config"):
+        assert key in st, key
+    assert st["spp"] == 16 and st["discarded"] == 0
+    assert 0 < st["render_seconds"] <= st["wall_seconds"]
+    assert st["samples_per_second"] == pytest.approx(16 * 16 * 12 / st["render_seconds"])
+    assert 0 < st["relmse_estimate"] < np.inf
+    assert st["config"]["sampler"] == "sobol" and st["config"]["replicates"] == 4
+    assert [p for p in os.listdir(tmp_path) if p.endswith(".tmp")] == []
 
 
 @pytest.fixture

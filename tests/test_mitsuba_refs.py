@@ -36,6 +36,10 @@ T_MAX = stats.t_isf2(stats.normal_sf2(4.0), B - 1)  # |t| with the two-sided p-v
 
 
 def batch_stats(scene, device, max_depth, spp=SPP, seeds=range(B), light_tracing=False, triangles=None):
+    if light_tracing == "auto":  # render() itself: its pilot, its choice and the combination of both candidates
+        imgs = np.stack([pathtracer.render(scene, spp=spp, max_depth=max_depth, seed=s, device=device,
+                                           triangles=triangles, progress=False).astype(np.float64) for s in seeds])
+        return imgs.mean(axis=0), imgs.var(axis=0, ddof=1) / len(imgs), imgs
     r = pathtracer.Renderer(scene, device=device, max_depth=max_depth, light_tracing=light_tracing,
                             triangles=triangles)
     imgs = np.stack([r.render_passes(seed=s, count=spp).mean.astype(np.float64) for s in seeds])
@@ -45,16 +49,17 @@ def batch_stats(scene, device, max_depth, spp=SPP, seeds=range(B), light_tracing
 LIGHT_TRACED = [n for n in sorted(META["refs"]) if not n.endswith("_d2") and n != "cornell_box"]  # have mirrors
 WITH_MESHES = [n for n in sorted(META["refs"]) if n.startswith("teapot")]  # for the "warp" triangle backend
 CASES = ([(n, False, None) for n in sorted(META["refs"])] + [(n, True, None) for n in LIGHT_TRACED]
-         + [(n, False, "warp") for n in WITH_MESHES])
+         + [(n, "auto", None) for n in LIGHT_TRACED] + [(n, False, "warp") for n in WITH_MESHES])
 IDS = ([n for n in sorted(META["refs"])] + [f"{n}-light_tracing" for n in LIGHT_TRACED]
-       + [f"{n}-warp_triangles" for n in WITH_MESHES])
+       + [f"{n}-auto" for n in LIGHT_TRACED] + [f"{n}-warp_triangles" for n in WITH_MESHES])
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name,light_tracing,triangles", CASES, ids=IDS)
 def test_agrees_with_mitsuba_reference(device, name, light_tracing, triangles):
     """With light tracing too on the scenes with mirrors: the caustics seen directly then come from light paths;
-    and with Warp's wp.Mesh as the triangle backend on the scenes with a mesh."""
+    with render()'s default "auto" there (a pilot of both, the winner, and the two combined); and with Warp's
+    wp.Mesh as the triangle backend on the scenes with a mesh."""
     info = META["refs"][name]
     ref = pathtracer.read_image(REFS / f"{name}.exr").astype(np.float64)
     ref_var = pathtracer.read_image(REFS / f"{name}_var.exr").astype(np.float64)
@@ -64,7 +69,7 @@ def test_agrees_with_mitsuba_reference(device, name, light_tracing, triangles):
     spp = SPP_DIRECT if name.endswith("_d2") else SPP
     ours, var, imgs = batch_stats(scene, device, depth, spp=spp, light_tracing=light_tracing, triangles=triangles)
     if light_tracing:
-        name = f"{name} (light tracing)"
+        name = f"{name} ({'auto: pilot and combination' if light_tracing == 'auto' else 'light tracing'})"
     if triangles:
         name = f"{name} ({triangles} triangles)"
 

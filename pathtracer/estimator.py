@@ -1,0 +1,147 @@
+"""The best estimator per scene ("auto"): light tracing or not, decided by a short pilot that counts toward the image.
+
+Light tracing (kernels/light_tracer.py) is 3-4x more efficient on the seed's mirror scenes and 6x less on the open
+sky, where light paths land next to the camera; nothing in the scene description tells the two apart reliably, so a
+pilot measures both. Every other choice is fixed because it measured best (or within noise of best) on every seed
+scene: one light sample per light, area sampling of the lights, Sobol' (docs/performance.md).
+
+The pilot renders ``P`` passes with each candidate: A (path tracing alone) from ``seed``, B (path tracing plus light
+tracing) from a seed of its own (``pilot_seed``), so that the two are independent. The candidate with the lower
+relMSE x cost per pass then renders the rest of the passes, continuing its own pass sequence (its Sobol' points stay a
+prefix of the sequence). The image combines both candidates' means with weights proportional to passes / (relMSE
+per pass), the inverse of each one's estimated error: nothing rendered is wasted, and a poor pilot costs only a
+little (weighted down by its own error). The weights come from image-wide estimates, so they barely depend on any
+one pixel. The cost per pass is a constant measured ratio, not the pilot's wall time: the decision, hence the image,
+depends only on the seed, spp and device, never on the machine's load or the thread count.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pathtracer.render import PassSum, Renderer, box3
+
+PILOT_FRACTION = 16  # the pilot renders 1/16 of the passes with each candidate
+MIN_PILOT = 8  # ... and at least this many (two per replicate)
+# light tracing's cost per pass relative to path tracing alone, measured on the two mirror scenes and the open sky
+# (docs/performance.md: 1.4-1.6x); the decision margins there are 3-6x
+LIGHT_TRACING_COST = 1.5
+_PILOT_SALT = 0x6C8E9CF5
+
+
+def pilot_seed(seed: int) -> int:
+    """The seed of candidate B's passes: a fixed bijection of ``seed``, so B's random numbers are independent of A's."""
+    return (seed ^ _PILOT_SALT) * 0x9E3779B1 % 2**32
+
+
+@dataclass
+class Combined:
+    """Means of independent estimators of one image, weighted by the inverse of their estimated error."""
+
+    parts: list[PassSum]
+    weights: list[float]
+    config: dict = field(default_factory=dict)
+
+    @property
+    def mean(self) -> np.ndarray:
+        return sum(w * p.mean.astype(np.float64) for w, p in zip(self.weights, self.parts)).astype(np.float32)
+
+    @property
+    def variance_of_mean(self) -> np.ndarray:
+        return sum(w * w * p.variance_of_mean for w, p in zip(self.weights, self.parts))
+
+    @property
+    def relmse_estimate(self) -> float:
+        """As ``PassSum.relmse_estimate``: Var[mean] / (box3(mean)^2 + 0.01), averaged over pixels and channels."""
+        return float(np.mean(self.variance_of_mean / (box3(self.mean.astype(np.float64)) ** 2 + 0.01)))
+
+    @property
+    def passes(self) -> int:
+        return sum(p.passes for p in self.parts)
+
+    @property
+    def seconds(self) -> float:
+        return sum(p.seconds for p in self.parts)
+
+    @property
+    def discarded(self) -> int:
+        return sum(p.discarded for p in self.parts)
+
+
+def inverse_error_weights(parts: list[PassSum]) -> list[float]:
+    """w_k proportional to 1 / relMSE_k (each part's image-wide error estimate), summing to 1; by pass counts
+    when an estimate is missing."""
+    err = [p.relmse_estimate for p in parts]
+    if all(np.isfinite(e) and e > 0 for e in err):
+        inv = [1.0 / e for e in err]
+    else:
+        inv = [float(p.passes) for p in parts]
+    total = sum(inv)
+    return [x / total for x in inv]
+
+
+def pilot_passes(spp: int, replicates: int) -> int:
+    """Passes per candidate in the pilot (a multiple of the replicates), or 0 when spp is too small for one."""
+    p = max(MIN_PILOT, spp // PILOT_FRACTION)
+    p -= p % replicates
+    return p if 3 * p <= spp and p >= 2 * replicates else 0
+
+
+def caustic_magnitude(scene) -> float:
+    """The largest value one camera path can add for a caustic seen directly (diffuse bounce -> mirrors -> light):
+    the bounce's weight (albedo, for cosine-weighted sampling of a Lambertian surface) times the mirrors'
+    reflectance times the light's radiance, maximised over materials, mirrors and lights."""
+    diffuse = [max(m.rgb) for m in scene.materials if m.kind == "diffuse"] or [1.0]
+    mirrors = [max(m.rgb) for m in scene.materials if m.kind == "mirror"] or [1.0]
+    lights = [max(light.radiance) for light in scene.lights] or [0.0]
+    return float(max(diffuse) * max(1.0, max(mirrors)) * max(lights))
+
+
+def predicted_path_error(traced_sums: PassSum, magnitude: float) -> float:
+    """relMSE per pass that path tracing alone would have, predicted from a pilot with light tracing.
+
+    The part of path space the light tracer takes over (caustics seen directly) is, for the path tracer, a rare
+    event: a sample adds about ``magnitude`` when its diffuse bounce happens to reach the light through the
+    mirrors, else nothing, so its variance per pass is about C x magnitude, C being that part's mean, which the
+    light tracer measures (its image). A pilot of path tracing alone cannot see this: with a few passes it rarely
+    draws such a sample at all, and so under-estimates its own error (on the mirror box, 8 passes chose wrongly one
+    time in two). The rest of the path tracer's variance is the light-traced run's own path-tracing part."""
+    pt_only = PassSum(traced_sums.sum, traced_sums.sum_sq, traced_sums.passes, rep_sum=traced_sums.rep_sum,
+                      rep_passes=traced_sums.rep_passes, estimator=traced_sums.estimator)
+    n = traced_sums.passes
+    caustic = np.maximum(traced_sums.lt_sum / n, 0.0)
+    image = box3(traced_sums.mean.astype(np.float64))
+    denom = image * image + 0.01
+    return float(np.mean(pt_only.variance_of_mean * n / denom) + np.mean(caustic * magnitude / denom))
+
+
+def render_auto(path: Renderer, traced: Renderer, seed: int, spp: int, progress: bool = False) -> Combined:
+    """Pilot both renderers (``path``: light tracing off, ``traced``: on), then finish with the better one."""
+    p = pilot_passes(spp, path.replicates)
+    seed_b = pilot_seed(seed)
+    a = path.render_passes(seed=seed, first_pass=0, count=p, progress=progress)
+    b = traced.render_passes(seed=seed_b, first_pass=0, count=p, progress=progress)
+    pilot_seconds = (a.seconds, b.seconds)
+    # relMSE x cost per pass of each candidate: path tracing's measured or, where the pilot cannot have seen its
+    # rare caustic samples, predicted from the light tracer's view of them (whichever is larger)
+    predicted = predicted_path_error(b, caustic_magnitude(path.scene))
+    measured = a.relmse_estimate * p
+    cost = {"path": max(measured, predicted),
+            "light_tracing": b.relmse_estimate * p * LIGHT_TRACING_COST}
+    use_lt = cost["light_tracing"] < cost["path"]
+    rest = spp - 2 * p
+    if use_lt:
+        b = b + traced.render_passes(seed=seed_b, first_pass=p, count=rest, progress=progress)
+    else:
+        a = a + path.render_passes(seed=seed, first_pass=p, count=rest, progress=progress)
+    parts = [a, b]
+    weights = inverse_error_weights(parts)
+    config = {"light_tracing": use_lt, "pilot": {
+        "passes_each": p, "light_tracing_cost_ratio": LIGHT_TRACING_COST,
+        "relmse_x_cost_per_pass": {k: float(v) for k, v in cost.items()},
+        "path_measured": float(measured), "path_predicted": predicted,
+        "pilot_seconds": {"path": pilot_seconds[0], "light_tracing": pilot_seconds[1]},
+        "weights": {"path": weights[0], "light_tracing": weights[1]}}}
+    return Combined(parts, weights, config)

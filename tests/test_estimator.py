@@ -1,0 +1,77 @@
+"""pathtracer/estimator.py: the "auto" choice of light tracing, by a pilot that counts toward the image."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import pathtracer
+from pathtracer import estimator
+from pathtracer.render import PassSum
+
+SCENES = Path(__file__).resolve().parents[1] / "scenes"
+
+
+def test_pilot_size():
+    assert estimator.pilot_passes(256, 4) == 16  # 1/16 of the passes, a multiple of the replicates
+    assert estimator.pilot_passes(64, 4) == 8  # at least MIN_PILOT
+    assert estimator.pilot_passes(20, 4) == 0  # too few passes for a pilot of both and a main run
+    assert estimator.pilot_passes(1000, 3) % 3 == 0
+
+
+def test_pilot_seed_is_a_different_sequence():
+    seeds = [estimator.pilot_seed(s) for s in range(1000)]
+    assert len(set(seeds)) == 1000 and all(0 <= s < 2**32 for s in seeds)
+    assert all(estimator.pilot_seed(s) != s for s in range(1000))
+
+
+def _sums(value, var, passes):
+    shape = (2, 2, 3)
+    total = np.full(shape, value * passes)
+    return PassSum(total, total * value + var * passes * passes, passes)  # per-pass variance `var * passes`
+
+
+def test_weights_are_inverse_errors_and_sum_to_one():
+    a, b = _sums(1.0, 0.04, 10), _sums(1.0, 0.01, 10)  # b's error is four times smaller
+    w = estimator.inverse_error_weights([a, b])
+    assert sum(w) == pytest.approx(1.0) and w[1] == pytest.approx(4 * w[0], rel=1e-6)
+    c = estimator.Combined([a, b], w)
+    # the combination's variance is the weighted sum, below either part's
+    assert np.all(c.variance_of_mean < np.minimum(a.variance_of_mean, b.variance_of_mean))
+    assert np.allclose(c.mean, 1.0)
+
+
+@pytest.mark.parametrize("name,expect", [("cornell_box_mirror.xml", True), ("open_sky.xml", False)])
+def test_auto_picks_light_tracing_where_it_wins(name, expect):
+    """The seed's mirror box: light tracing (3-4x more efficient in docs/performance.md); the open sky: not (6x
+    less). The pilot counts: the image has every requested pass, from both candidates."""
+    scene = pathtracer.load_file(SCENES / name, width=48, height=36)
+    st = {}
+    img = pathtracer.render(scene, spp=128, seed=1, progress=False, stats=st)
+    cfg = st["config"]
+    assert cfg["light_tracing"] is expect and cfg["light_tracing_choice"] == "auto"
+    assert st["spp"] == 128 and cfg["pilot"]["passes_each"] == 8
+    w = cfg["pilot"]["weights"]
+    assert w["light_tracing" if expect else "path"] > 0.5 and sum(w.values()) == pytest.approx(1.0)
+    assert np.isfinite(img).all() and img.mean() > 0
+
+
+def test_auto_does_not_depend_on_threads():
+    scene = pathtracer.load_file(SCENES / "cornell_box_mirror.xml", width=32, height=24)
+    a = pathtracer.render(scene, spp=64, seed=2, threads=1, progress=False)
+    b = pathtracer.render(scene, spp=64, seed=2, threads=2, progress=False)
+    assert np.array_equal(a, b)
+
+
+def test_fixed_choices_run_no_pilot():
+    scene = pathtracer.load_file(SCENES / "cornell_box_mirror.xml", width=16, height=12)
+    for lt in (True, False):
+        st = {}
+        pathtracer.render(scene, spp=64, seed=0, light_tracing=lt, progress=False, stats=st)
+        assert st["config"]["light_tracing"] is lt and "pilot" not in st["config"]
+    st = {}  # no mirrors: nothing to decide, no pilot
+    pathtracer.render(pathtracer.load_file(SCENES / "cornell_box.xml", width=16, height=12), spp=64,
+                      progress=False, stats=st)
+    assert st["config"]["light_tracing"] is False and "pilot" not in st["config"]
