@@ -74,3 +74,23 @@ def test_bench_reads_time_to_error_off_the_ladder():
     # not reached: extrapolated from the last rung at rate 1/t
     t, how = crossing_time(ladder([(1.0, 1e-1), (4.0, 2.5e-2), (16.0, 6.25e-3)]), 1e-3)
     assert how == "extrapolated" and abs(t - 100.0) < 1e-9
+
+
+def test_gpu_check_without_cuda_says_so():
+    """examples/gpu_check.py is for a CUDA machine; without one it exits cleanly and says why."""
+    import warp as wp
+
+    if wp.is_cuda_available():
+        pytest.skip("a CUDA device is present: the real check is examples/gpu_check.py itself")
+    r = run_example("examples/gpu_check.py")
+    assert "no CUDA device" in r.stdout
+
+
+def test_bench_rays_tiny(tmp_path):
+    """The ray bench end to end, tiny: every backend agrees with ours on what it hits, and ours has no leaks."""
+    run_example("examples/bench_rays.py", "--rounds", "1", "--rays", "2000", "--out", str(tmp_path))
+    report = json.loads((tmp_path / "bench_rays.json").read_text())
+    for row in report["sets"].values():
+        assert row["mrays_per_s"]["wide"] > 0
+        assert all(a > 0.99 for a in row["hit_agreement_with_wide"].values())
+    assert all(bad == 0 for bad, _ in report["leaks"]["wide"].values())
