@@ -15,7 +15,9 @@ Timing: rounds of each ray set, the backends one after the other in every round;
 rounds, the ratios the median of per-round ratios (robust to the shared VM's drifting clock).
 A Warp CPU launch runs on one core; embreex's ``run`` loops over single rays (rtcIntersect1) on one thread.
 
-    python examples/bench_rays.py [--rounds 9] [--out docs]
+Set-up (--setup): load + tree + upload against triangle count, next to trimesh's load plus wp.Mesh's build.
+
+    python examples/bench_rays.py [--rounds 9] [--out docs] [--setup [SUBDIV ...]]
 """
 
 from __future__ import annotations
@@ -175,7 +177,7 @@ def leak_rays(rng):
     return np.asarray(m.vertices), np.asarray(m.faces), rays
 
 
-def run(rounds: int, n_random: int, out: Path | None) -> dict:
+def run(rounds: int, n_random: int) -> dict:
     rng = np.random.default_rng(0)
     sets = {}
     if BUNNY.exists():
@@ -228,12 +230,62 @@ def run(rounds: int, n_random: int, out: Path | None) -> dict:
             leaks[b][kind] = [int(bad.sum()), len(o)]
     print("leaks (icosphere, 82k triangles): " + "; ".join(
         f"{b}: " + ", ".join(f"{k} {x[0]}/{x[1]}" for k, x in v.items()) for b, v in leaks.items()))
-    report = {"machine": f"{platform.processor() or platform.machine()}, {platform.python_version()}, "
-                         f"warp {wp.config.version}", "rounds": rounds, "sets": results, "leaks": leaks}
-    if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "bench_rays.json").write_text(json.dumps(report, indent=1))
-    return report
+    return {"machine": f"{platform.processor() or platform.machine()}, {platform.python_version()}, "
+                       f"warp {wp.config.version}", "rounds": rounds, "sets": results, "leaks": leaks}
+
+
+SETUP_SCENE = """<scene version="3.0.0">
+    <sensor type="perspective"><float name="fov" value="45"/>
+        <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
+        <film type="hdrfilm"><integer name="width" value="160"/><integer name="height" value="120"/>
+            <rfilter type="box"/></film></sensor>
+    <shape type="ply"><string name="filename" value="{ply}"/></shape>
+    <shape type="rectangle"><transform name="to_world"><translate value="0, 0, -2"/><scale value="3"/></transform>
+        <emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>
+</scene>
+"""
+
+
+def setup_times(subdivisions=(4, 6, 8, 9), workdir: Path | None = None) -> list[dict]:
+    """Scene set-up against triangle count: an icosphere PLY in a scene file, loaded (ours: file, parse, vertex
+    normals) and uploaded (ours: the box tree, the leaves, the device arrays), against trimesh's load and
+    wp.Mesh's build of the same triangles. Each figure is the fastest of two runs."""
+    import tempfile
+
+    from pathtracer.device_scene import DeviceScene
+
+    workdir = Path(tempfile.mkdtemp()) if workdir is None else workdir
+    rows = []
+    for s in subdivisions:
+        m = trimesh.creation.icosphere(subdivisions=s, radius=1.0)
+        ply = workdir / f"ico{s}.ply"
+        m.export(ply)
+        xml = workdir / f"ico{s}.xml"
+        xml.write_text(SETUP_SCENE.format(ply=ply))
+        best = {}
+        for _ in range(2):
+            t0 = time.perf_counter()
+            tm = trimesh.load(ply, process=False, force="mesh")
+            t1 = time.perf_counter()
+            wp_mesh = wp.Mesh(points=wp.array(np.asarray(tm.vertices, np.float32), dtype=wp.vec3, device="cpu"),
+                              indices=wp.array(np.asarray(tm.faces, np.int32).reshape(-1), dtype=int, device="cpu"))
+            t2 = time.perf_counter()
+            scene = pathtracer.load_file(xml)
+            t3 = time.perf_counter()
+            ds = DeviceScene(scene, "cpu")
+            t4 = time.perf_counter()
+            for k, v in {"trimesh_load": t1 - t0, "wp_mesh_build": t2 - t1, "our_load": t3 - t2,
+                         "our_bvh_upload": t4 - t3}.items():
+                best[k] = min(best.get(k, np.inf), v)
+            del wp_mesh, ds
+        row = {"triangles": len(m.faces), **best}
+        row["ready"] = row["our_load"] + row["our_bvh_upload"]
+        row["ready_over_trimesh_plus_wp_mesh"] = row["ready"] / (row["trimesh_load"] + row["wp_mesh_build"])
+        rows.append(row)
+        print(f"set-up, {len(m.faces)} triangles: ours {row['ready']:.2f} s (load {row['our_load']:.2f} + tree and "
+              f"upload {row['our_bvh_upload']:.2f}), trimesh {row['trimesh_load']:.2f} + wp.Mesh "
+              f"{row['wp_mesh_build']:.2f}: ratio {row['ready_over_trimesh_plus_wp_mesh']:.2f}", flush=True)
+    return rows
 
 
 def main(argv=None):
@@ -241,8 +293,16 @@ def main(argv=None):
     p.add_argument("--rounds", type=int, default=9)
     p.add_argument("--rays", type=int, default=200_000, help="random bunny rays per round")
     p.add_argument("--out", type=Path, help="write bench_rays.json there")
+    p.add_argument("--setup", type=int, nargs="*", metavar="SUBDIV",
+                   help="also time scene set-up on icospheres of these subdivisions (default 4 6 8 9: 5k to 5.2M "
+                   "triangles)")
     a = p.parse_args(argv)
-    run(a.rounds, a.rays, a.out)
+    report = run(a.rounds, a.rays)
+    if a.setup is not None:
+        report["setup"] = setup_times(tuple(a.setup) or (4, 6, 8, 9))
+    if a.out is not None:
+        a.out.mkdir(parents=True, exist_ok=True)
+        (a.out / "bench_rays.json").write_text(json.dumps(report, indent=1))
 
 
 if __name__ == "__main__":

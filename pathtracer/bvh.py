@@ -54,6 +54,86 @@ def _sah_split(lo: np.ndarray, hi: np.ndarray) -> int:
     return int(np.argmin(left * k + right * (m - k))) + 1
 
 
+MORTON_MIN = 200_000  # from this many boxes on, build_tree uses the Morton (linear) builder
+MORTON_BITS = 21  # per axis: 63-bit codes
+MORTON_MEDIAN_LEVELS = 40  # below this depth, medians: the tree stays shallow even where codes cluster
+
+
+def morton_codes(lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """63-bit Morton codes of the boxes' centres, quantised over the centres' bounding box (``kernels/bvh_build.py``
+    on the CPU; 25x faster than numpy on 5M boxes)."""
+    import warp as wp
+
+    from kernels.bvh_build import morton_codes as kernel
+    from pathtracer.warp_setup import init_warp
+
+    init_warp()
+    lo_c = 0.5 * (lower.min(axis=0).astype(np.float64) + upper.min(axis=0))  # bounds of the centres, conservatively
+    hi_c = 0.5 * (lower.max(axis=0).astype(np.float64) + upper.max(axis=0))
+    inv = 1.0 / np.maximum(hi_c - lo_c, 1e-300)
+    codes = wp.zeros(len(lower), dtype=wp.uint64, device="cpu")
+    wp.launch(kernel, dim=len(lower), device="cpu",
+              inputs=[wp.array(lower, dtype=wp.vec3, device="cpu"), wp.array(upper, dtype=wp.vec3, device="cpu"),
+                      wp.vec3d(*lo_c), wp.vec3d(*inv)], outputs=[codes])
+    return codes.numpy()
+
+
+def _highest_bit(x: np.ndarray) -> np.ndarray:
+    """floor(log2(x)) of uint64 x > 0, exact (the float estimate corrected by a shift test)."""
+    b = np.floor(np.log2(x.astype(np.float64))).astype(np.uint64)
+    too_high = (x >> b) == 0
+    b[too_high] -= np.uint64(1)
+    low = (x >> b) > 1
+    b[low] += np.uint64(1)
+    return b
+
+
+def build_morton_tree(lower: np.ndarray, upper: np.ndarray, leaf_size: int = LEAF_SIZE) -> BoxTree:
+    """A linear BVH (Karras 2012, built level by level): the boxes sorted once by the Morton code of their centres,
+    every range cut where its codes' highest differing bit changes (found by a binary search in the sorted
+    codes), at the middle where all its codes are equal or below MORTON_MEDIAN_LEVELS. No sweep and no per-level
+    sort, so millions of boxes build in seconds; the trees trace somewhat slower than the SAH builder's."""
+    lower = np.asarray(lower, dtype=np.float32).reshape(-1, 3)
+    upper = np.asarray(upper, dtype=np.float32).reshape(-1, 3)
+    n = len(lower)
+    if n == 0:
+        raise ValueError("a box tree needs at least one box")
+    codes = morton_codes(np.ascontiguousarray(lower), np.ascontiguousarray(upper))
+    perm = np.argsort(codes, kind="stable")
+    codes = codes[perm]
+    levels = []
+    ids, starts, sizes = np.array([0]), np.array([0]), np.array([n])
+    next_id = 1
+    while len(ids):
+        inner = sizes > leaf_size
+        children = np.full(len(ids), -1)
+        children[inner] = next_id + 2 * np.arange(int(inner.sum()))
+        levels.append((ids, starts, sizes, children))
+        if not inner.any():
+            break
+        ids_in, starts, sizes = children[inner], starts[inner], sizes[inner]
+        next_id += 2 * len(ids_in)
+        first, last = codes[starts], codes[starts + sizes - 1]
+        cut = sizes // 2
+        differ = first != last
+        if len(levels) <= MORTON_MEDIAN_LEVELS and differ.any():
+            f = first[differ]
+            bit = _highest_bit(f ^ last[differ])
+            threshold = ((f >> bit) | np.uint64(1)) << bit
+            cut[differ] = np.searchsorted(codes, threshold, side="left") - starts[differ]
+        ids = np.stack([ids_in, ids_in + 1], axis=1).reshape(-1)
+        starts, sizes = (np.stack([starts, starts + cut], axis=1).reshape(-1),
+                         np.stack([cut, sizes - cut], axis=1).reshape(-1))
+    return _bottom_up(levels, next_id, perm, lower, upper)
+
+
+def build_tree(lower: np.ndarray, upper: np.ndarray) -> BoxTree:
+    """The SAH builder up to MORTON_MIN boxes, the Morton builder beyond (where the SAH one takes minutes)."""
+    if len(lower) >= MORTON_MIN:
+        return build_morton_tree(lower, upper)
+    return build_box_tree(lower, upper)
+
+
 def build_box_tree(lower: np.ndarray, upper: np.ndarray, leaf_size: int = LEAF_SIZE) -> BoxTree:
     """Tree over the boxes [lower[i], upper[i]] (float32, already padded as the caller needs).
 
@@ -96,7 +176,12 @@ def build_box_tree(lower: np.ndarray, upper: np.ndarray, leaf_size: int = LEAF_S
         ids = np.stack([ids_in, ids_in + 1], axis=1).reshape(-1)
         starts, sizes = (np.stack([starts, starts + cut], axis=1).reshape(-1),
                          np.stack([cut, sizes - cut], axis=1).reshape(-1))
-    nodes = next_id
+    return _bottom_up(levels, next_id, perm, lower, upper)
+
+
+def _bottom_up(levels, nodes: int, perm: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> BoxTree:
+    """The node arrays from the planned splits (per level: node ids, range starts and sizes, first children):
+    leaf boxes from their primitives, inner boxes from their children, deepest level first."""
     lo = np.full((nodes, 3), np.inf, dtype=np.float32)
     hi = np.full((nodes, 3), -np.inf, dtype=np.float32)
     start = np.zeros(nodes, dtype=np.int32)

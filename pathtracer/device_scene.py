@@ -12,13 +12,15 @@ import warp as wp
 from kernels.integrator import LIGHT_SAMPLINGS, RR_RULES, SAMPLERS, TRIANGLES, VIEWS, Features
 from kernels.types import CameraData, SceneData
 from kernels.triangle import STACK_SIZE
-from pathtracer.bvh import BoxTree, WideTree, build_box_tree, collapse_wide, leaf_lanes
+from pathtracer.bvh import BoxTree, WideTree, build_tree, collapse_wide, leaf_lanes
 from pathtracer.errors import RenderError
 from pathtracer.scene import MIRROR, Scene, TriangleMesh
 
 
 def _vec3(a, device) -> wp.array:
-    return wp.array(np.asarray(a, dtype=np.float32).reshape(-1, 3), dtype=wp.vec3, device=device)
+    # on the CPU the array wraps the numpy buffer (Warp keeps a reference): no second copy of millions of vertices
+    return wp.array(np.ascontiguousarray(a, dtype=np.float32).reshape(-1, 3), dtype=wp.vec3, device=device,
+                    copy=device != "cpu")
 
 
 def _vec3d(a, device) -> wp.array:
@@ -27,7 +29,8 @@ def _vec3d(a, device) -> wp.array:
 
 def _arr(a, dtype, device) -> wp.array:
     np_dtype = np.int32 if dtype == wp.int32 else np.float32
-    return wp.array(np.asarray(a, dtype=np_dtype).reshape(-1), dtype=dtype, device=device)
+    return wp.array(np.ascontiguousarray(a, dtype=np_dtype).reshape(-1), dtype=dtype, device=device,
+                    copy=device != "cpu")
 
 
 def _face_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
@@ -53,19 +56,27 @@ def triangle_box_pad(points: np.ndarray, camera_origin) -> float:
 
 def _triangle_tree(points: np.ndarray, faces: np.ndarray, pad: float) -> BoxTree:
     """The box tree over the faces' float32 boxes grown by ``pad`` (rounded outward)."""
-    tri = points.astype(np.float32)[faces].astype(np.float64)
-    lo = np.nextafter((tri.min(axis=1) - pad).astype(np.float32), np.float32(-np.inf))
-    hi = np.nextafter((tri.max(axis=1) + pad).astype(np.float32), np.float32(np.inf))
-    return build_box_tree(lo, hi)
+    p32 = points.astype(np.float32)  # the coordinates the kernels test
+    a, b, c = p32[faces[:, 0]], p32[faces[:, 1]], p32[faces[:, 2]]
+    lo = np.minimum(np.minimum(a, b), c).astype(np.float64)  # (a reduction over a length-3 axis is 5x slower)
+    hi = np.maximum(np.maximum(a, b), c).astype(np.float64)
+    lo = np.nextafter((lo - pad).astype(np.float32), np.float32(-np.inf))
+    hi = np.nextafter((hi + pad).astype(np.float32), np.float32(np.inf))
+    return build_tree(lo, hi)
 
 
 def leaf_soa(points: np.ndarray, faces: np.ndarray, tree: WideTree) -> tuple[np.ndarray, np.ndarray]:
     """(9 leaves, 4) corner coordinates of each leaf block's triangles, lane by lane (NaN in unused lanes), as
     ``kernels.triangle.leaf_closest`` reads them; and (4 leaves,) the face in each lane (-1 unused)."""
-    lanes = leaf_lanes(tree)  # (leaves, 4)
-    corners = points[faces[np.maximum(lanes, 0)]]  # (leaves, 4, 3 corners, 3 axes)
-    corners[lanes < 0] = np.nan
-    return corners.transpose(0, 2, 3, 1).reshape(-1, 4), lanes.reshape(-1)
+    from kernels.bvh_build import leaf_soa as kernel
+
+    lanes = leaf_lanes(tree).astype(np.int32).reshape(-1)  # 4 per leaf
+    soa = wp.zeros(9 * (len(lanes) // 4), dtype=wp.vec4, device="cpu")
+    wp.launch(kernel, dim=len(lanes) // 4, device="cpu",
+              inputs=[wp.array(np.ascontiguousarray(points, dtype=np.float32), dtype=wp.vec3, device="cpu"),
+                      wp.array(np.ascontiguousarray(faces, dtype=np.int32).reshape(-1), dtype=wp.int32,
+                               device="cpu"), wp.array(lanes, dtype=wp.int32, device="cpu")], outputs=[soa])
+    return soa.numpy().reshape(-1, 4), lanes
 
 
 QUAD_SHAPES = ("rectangle", "cube")
@@ -197,7 +208,8 @@ class TriangleData:
         d.bvh_boxes = wp.array(t.boxes if t else np.zeros((0, 4), np.float32), dtype=wp.vec4, device=device)
         d.bvh_child = wp.array(t.child if t else np.zeros((0, 4), np.int32), dtype=wp.vec4i, device=device)
         soa, lane_face = leaf_soa(np.asarray(points, np.float32), faces, t) if t else (np.zeros((0, 4)), [])
-        d.tri_soa = wp.array(soa.astype(np.float32), dtype=wp.vec4, device=device)
+        d.tri_soa = wp.array(np.ascontiguousarray(soa, dtype=np.float32), dtype=wp.vec4, device=device,
+                             copy=device != "cpu")
         d.tri_face = _arr(lane_face, wp.int32, device)
         d.points = self.points
         d.indices = self.indices

@@ -105,36 +105,28 @@ def read_mesh(path: Path, kind: str) -> list[MeshPart]:
     return parts
 
 
-def _unit_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Angle between unit vectors (rows), numerically stable (Mitsuba's ``unit_angle``)."""
-    dot = np.einsum("ij,ij->i", a, b)
-    minus = 2.0 * np.arcsin(np.clip(np.linalg.norm(a - b, axis=1) / 2.0, 0.0, 1.0))
-    plus = np.pi - 2.0 * np.arcsin(np.clip(np.linalg.norm(a + b, axis=1) / 2.0, 0.0, 1.0))
-    return np.where(dot >= 0.0, minus, plus)
-
-
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Smooth vertex normals as Mitsuba's ``Mesh::recompute_vertex_normals``.
 
     Each face adds its unit normal weighted by its corner angle at each of its vertices
-    (Thuermer and Wuethrich 1998); zero-area faces add nothing. A vertex whose sum is zero
-    (unused, or only on degenerate faces) gets (1, 0, 0), Mitsuba's placeholder.
+    (Thuermer and Wuethrich 1998); zero-area faces add nothing (``kernels/mesh_normals.py``, on the CPU). A vertex
+    whose sum is zero (unused, or only on degenerate faces) gets (1, 0, 0), Mitsuba's placeholder.
     """
-    v = [vertices[faces[:, i]] for i in range(3)]
-    n = np.cross(v[1] - v[0], v[2] - v[0])
-    length = np.linalg.norm(n, axis=1)
-    ok = length > 0
-    n = n[ok] / length[ok, None]
-    f = faces[ok]
-    v = [x[ok] for x in v]
-    out = np.zeros_like(vertices, dtype=np.float64)
-    for i in range(3):
-        e1 = v[(i + 1) % 3] - v[i]
-        e2 = v[(i + 2) % 3] - v[i]
-        e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-        e2 /= np.linalg.norm(e2, axis=1, keepdims=True)
-        np.add.at(out, f[:, i], n * _unit_angle(e1, e2)[:, None])
-    length = np.linalg.norm(out, axis=1)
+    import warp as wp
+
+    from kernels.mesh_normals import accumulate_vertex_normals
+    from pathtracer.warp_setup import init_warp
+
+    init_warp()
+    out = wp.zeros(len(vertices), dtype=wp.vec3d, device="cpu")
+    if len(faces):
+        wp.launch(accumulate_vertex_normals, dim=len(faces), device="cpu",
+                  inputs=[wp.array(np.ascontiguousarray(vertices, dtype=np.float64), dtype=wp.vec3d, device="cpu"),
+                          wp.array(np.ascontiguousarray(faces, dtype=np.int32).reshape(-1), dtype=wp.int32,
+                                   device="cpu")],
+                  outputs=[out])
+    out = out.numpy()
+    length = np.sqrt(np.einsum("ij,ij->i", out, out))
     bad = ~(length > 0)
     out[bad] = (1.0, 0.0, 0.0)
     length[bad] = 1.0

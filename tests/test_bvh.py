@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from kernels.triangle import STACK_SIZE
-from pathtracer.bvh import build_box_tree, collapse_wide, leaf_lanes
+from pathtracer.bvh import _highest_bit, build_box_tree, build_morton_tree, collapse_wide, leaf_lanes
 
 
 def walk(tree, lower, upper):
@@ -47,11 +47,15 @@ def boxes(kind, n, rng):
     return lo, (c + 1e-3).astype(np.float32)
 
 
+BUILDERS = {"sah": build_box_tree, "morton": build_morton_tree}
+
+
+@pytest.mark.parametrize("builder", sorted(BUILDERS))
 @pytest.mark.parametrize("kind", ["uniform", "identical", "geometric", "shell"])
 @pytest.mark.parametrize("n", [1, 2, 4, 5, 17, 1000, 20000])
-def test_tree_holds_every_box_once_with_tight_bounds_and_fits_the_stack(kind, n):
+def test_tree_holds_every_box_once_with_tight_bounds_and_fits_the_stack(kind, n, builder):
     lower, upper = boxes(kind, n, np.random.default_rng(n))
-    tree = build_box_tree(lower, upper)
+    tree = BUILDERS[builder](lower, upper)
     assert np.array_equal(np.sort(tree.prims), np.arange(n))
     assert tree.count.sum() == n and tree.count.max() <= 4
     depth = walk(tree, lower, upper)
@@ -120,13 +124,29 @@ def walk_wide(wide, lower, upper):
     return np.array(reached), deepest_stack
 
 
+@pytest.mark.parametrize("builder", sorted(BUILDERS))
 @pytest.mark.parametrize("kind", ["uniform", "identical", "geometric", "shell"])
 @pytest.mark.parametrize("n", [1, 4, 5, 17, 1000, 20000])
-def test_wide_tree_holds_every_box_once_with_exact_bounds_and_a_true_stack_bound(kind, n):
+def test_wide_tree_holds_every_box_once_with_exact_bounds_and_a_true_stack_bound(kind, n, builder):
     lower, upper = boxes(kind, n, np.random.default_rng(n))
-    wide = collapse_wide(build_box_tree(lower, upper))
+    wide = collapse_wide(BUILDERS[builder](lower, upper))
     reached, stack = walk_wide(wide, lower, upper)
     assert np.array_equal(np.sort(reached), np.arange(n))
     assert stack == wide.stack_bound and wide.stack_bound < STACK_SIZE
     lanes = leaf_lanes(wide)
     assert np.array_equal(np.sort(lanes[lanes >= 0]), np.arange(n))
+
+
+def test_highest_bit_is_exact_where_float64_rounds():
+    x = np.array([1, 2, 3, 2**53 + 1, 2**60 - 1, 2**62, 2**63 - 1, 2**64 - 1], dtype=np.uint64)
+    assert _highest_bit(x).tolist() == [int(v).bit_length() - 1 for v in x.tolist()]
+
+
+def test_morton_tree_cuts_between_clusters():
+    """Two far-apart clusters: the root's cut separates them (their codes differ in the top bit)."""
+    rng = np.random.default_rng(2)
+    c = np.concatenate([rng.random((300, 3)), 100.0 + rng.random((500, 3))])
+    tree = build_morton_tree((c - 1e-3).astype(np.float32), (c + 1e-3).astype(np.float32))
+    a = tree.start[0]
+    sizes = sorted(int(np.sum(tree.count[_subtree(tree, k)])) for k in (a, a + 1))
+    assert sizes == [300, 500]
