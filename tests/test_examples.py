@@ -52,7 +52,8 @@ def test_bench_tiny(tmp_path):
     """The speed-against-error bench end to end, tiny and without Mitsuba: the report and its plot are written."""
     pytest.importorskip("matplotlib")
     run_example("examples/bench.py", "--scenes", "cornell_box", "--ladder", "1", "2", "--configs", "K=1", "K=1 sobol",
-                "--no-mitsuba", "--no-threads", "--no-compile", "--width", "16", "--height", "12", "--ref-spp", "64",
+                "--no-mitsuba", "--no-threads", "--no-compile", "--no-process", "--width", "16", "--height", "12",
+                "--ref-spp", "64",
                 "--ref-dir", str(tmp_path / "refs"), "--out", str(tmp_path))
     report = (tmp_path / "performance.md").read_text()
     assert "| K=1 | 2 |" in report and "| K=1 sobol | 2 |" in report and "Reference: ours 64 spp" in report
