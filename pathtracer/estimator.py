@@ -5,10 +5,11 @@ sky, where light paths land next to the camera; nothing in the scene description
 pilot measures both. Every other choice is fixed because it measured best (or within noise of best) on every seed
 scene: one light sample per light, area sampling of the lights, Sobol' (docs/performance.md).
 
-The pilot renders ``P`` passes with each candidate: A (path tracing alone) from ``seed``, B (path tracing plus light
-tracing) from a seed of its own (``pilot_seed``), so that the two are independent. The candidate with the lower
-relMSE x cost per pass then renders the rest of the passes, continuing its own pass sequence (its Sobol' points stay a
-prefix of the sequence). The image combines both candidates' means with weights proportional to passes / (relMSE
+The pilot renders ``P`` = spp / 32 passes with each candidate: A (path tracing alone) from ``seed``, B (path tracing
+plus light tracing) from a seed of its own (``pilot_seed``), so that the two are independent. The candidate with the
+lower relMSE x cost per pass then renders its remaining passes up to spp, continuing its own pass sequence (its
+Sobol' points stay a prefix of the sequence, spp of them: a power of two stays one; with spp - P, 240 of 256, the
+open sky's error was 25% higher), so the image holds spp + P passes. The image combines both candidates' means with weights proportional to passes / (relMSE
 per pass), the inverse of each one's estimated error: nothing rendered is wasted, and a poor pilot costs only a
 little (weighted down by its own error). The weights come from image-wide estimates, so they barely depend on any
 one pixel. The cost per pass is a constant measured ratio, not the pilot's wall time: the decision, hence the image,
@@ -23,7 +24,7 @@ import numpy as np
 
 from pathtracer.render import PassSum, Renderer, box3
 
-PILOT_FRACTION = 16  # the pilot renders 1/16 of the passes with each candidate
+PILOT_FRACTION = 32  # the pilot renders 1/32 of the passes with each candidate
 MIN_PILOT = 8  # ... and at least this many (two per replicate)
 # light tracing's cost per pass relative to path tracing alone, measured on the two mirror scenes and the open sky
 # (docs/performance.md: 1.4-1.6x); the decision margins there are 3-6x
@@ -86,7 +87,7 @@ def pilot_passes(spp: int, replicates: int) -> int:
     """Passes per candidate in the pilot (a multiple of the replicates), or 0 when spp is too small for one."""
     p = max(MIN_PILOT, spp // PILOT_FRACTION)
     p -= p % replicates
-    return p if 3 * p <= spp and p >= 2 * replicates else 0
+    return p if 4 * p <= spp and p >= 2 * replicates else 0
 
 
 def caustic_magnitude(scene) -> float:
@@ -131,7 +132,7 @@ def render_auto(path: Renderer, traced: Renderer, seed: int, spp: int, progress:
     cost = {"path": max(measured, predicted),
             "light_tracing": b.relmse_estimate * p * LIGHT_TRACING_COST}
     use_lt = cost["light_tracing"] < cost["path"]
-    rest = spp - 2 * p
+    rest = spp - p  # the winner renders all spp passes (a power of two stays one, for Sobol'); the loser's pilot adds
     if use_lt:
         b = b + traced.render_passes(seed=seed_b, first_pass=p, count=rest, progress=progress)
     else:

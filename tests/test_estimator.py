@@ -15,9 +15,9 @@ SCENES = Path(__file__).resolve().parents[1] / "scenes"
 
 
 def test_pilot_size():
-    assert estimator.pilot_passes(256, 4) == 16  # 1/16 of the passes, a multiple of the replicates
+    assert estimator.pilot_passes(1024, 4) == 32  # 1/32 of the passes, a multiple of the replicates
     assert estimator.pilot_passes(64, 4) == 8  # at least MIN_PILOT
-    assert estimator.pilot_passes(20, 4) == 0  # too few passes for a pilot of both and a main run
+    assert estimator.pilot_passes(28, 4) == 0  # too few passes for a pilot of both and a main run
     assert estimator.pilot_passes(1000, 3) % 3 == 0
 
 
@@ -46,13 +46,13 @@ def test_weights_are_inverse_errors_and_sum_to_one():
 @pytest.mark.parametrize("name,expect", [("cornell_box_mirror.xml", True), ("open_sky.xml", False)])
 def test_auto_picks_light_tracing_where_it_wins(name, expect):
     """The seed's mirror box: light tracing (3-4x more efficient in docs/performance.md); the open sky: not (6x
-    less). The pilot counts: the image has every requested pass, from both candidates."""
+    less). The pilot counts: the image has the winner's spp passes and the loser's pilot."""
     scene = pathtracer.load_file(SCENES / name, width=48, height=36)
     st = {}
     img = pathtracer.render(scene, spp=128, seed=1, progress=False, stats=st)
     cfg = st["config"]
     assert cfg["light_tracing"] is expect and cfg["light_tracing_choice"] == "auto"
-    assert st["spp"] == 128 and cfg["pilot"]["passes_each"] == 8
+    assert st["spp"] == 128 + 8 and cfg["pilot"]["passes_each"] == 8
     w = cfg["pilot"]["weights"]
     assert w["light_tracing" if expect else "path"] > 0.5 and sum(w.values()) == pytest.approx(1.0)
     assert np.isfinite(img).all() and img.mean() > 0
