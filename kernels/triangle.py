@@ -77,40 +77,6 @@ def edge_function(ax: float, ay: float, bx: float, by: float) -> float:
     return e
 
 
-@wp.func
-def ray_triangle(o: wp.vec3, r: RayShear, a: wp.vec3, b: wp.vec3, c: wp.vec3, tmax: float) -> wp.vec3:
-    """(t, u, v) of the hit of ray o + t d (the ``RayShear`` of d) with triangle abc in 0 <= t < tmax; t = -1 on a
-    miss. u, v weight a and b. Either side counts; a degenerate (zero-area) triangle is never hit."""
-    miss = wp.vec3(-1.0, 0.0, 0.0)
-    A = a - o
-    B = b - o
-    C = c - o
-    ax = A[r.kx] - r.s[0] * A[r.kz]
-    ay = A[r.ky] - r.s[1] * A[r.kz]
-    bx = B[r.kx] - r.s[0] * B[r.kz]
-    by = B[r.ky] - r.s[1] * B[r.kz]
-    cx = C[r.kx] - r.s[0] * C[r.kz]
-    cy = C[r.ky] - r.s[1] * C[r.kz]
-    U = edge_function(cx, cy, bx, by)
-    V = edge_function(ax, ay, cx, cy)
-    W = edge_function(bx, by, ax, ay)
-    if (U < 0.0 or V < 0.0 or W < 0.0) and (U > 0.0 or V > 0.0 or W > 0.0):
-        return miss
-    det = U + V + W
-    if det == 0.0:
-        return miss
-    T = U * (r.s[2] * A[r.kz]) + V * (r.s[2] * B[r.kz]) + W * (r.s[2] * C[r.kz])
-    if det < 0.0:
-        T = -T
-        det = -det
-    # t = 0 counts, as in Warp's test: a ray spawned exactly on a cube's edge, offset along one face's normal, starts
-    # in the adjacent face's plane, and must not leave through that face
-    if not (T >= 0.0 and T < tmax * det):  # also rejects NaN
-        return miss
-    inv = 1.0 / det
-    return wp.vec3(T * inv, wp.abs(U) * inv, wp.abs(V) * inv)
-
-
 STACK_SIZE = 64  # pathtracer/bvh.py's collapse_wide bounds what a traversal pushes (WideTree.stack_bound)
 StackInt = wp.types.vector(length=STACK_SIZE, dtype=wp.int32)
 StackFloat = wp.types.vector(length=STACK_SIZE, dtype=wp.float32)
@@ -190,24 +156,26 @@ def edge_fallback(e: wp.vec4, ax: wp.vec4, ay: wp.vec4, bx: wp.vec4, by: wp.vec4
 
 
 @wp.func
-def leaf_closest(scene: SceneData, leaf: int, o: wp.vec3, r: RayShear, tmax: float) -> LeafHit:
-    """``ray_triangle`` on the up to four triangles of one leaf at once: the leaf stores each corner's x, y and z
-    of its four triangles as vec4s (``tri_soa[9 leaf + 3 corner + axis]``; unused lanes are NaN, which every
-    comparison rejects), so the shear and the edge functions are four-wide operations. Lane by lane the arithmetic
-    is ``ray_triangle``'s, operation for operation, so it is exactly as watertight. The nearest hit below tmax."""
-    base = 9 * leaf
-    okx = wp.vec4(o[r.kx])
-    oky = wp.vec4(o[r.ky])
-    okz = wp.vec4(o[r.kz])
-    az = scene.tri_soa[base + r.kz] - okz
-    bz = scene.tri_soa[base + 3 + r.kz] - okz
-    cz = scene.tri_soa[base + 6 + r.kz] - okz
-    ax = (scene.tri_soa[base + r.kx] - okx) - az * r.s[0]
-    ay = (scene.tri_soa[base + r.ky] - oky) - az * r.s[1]
-    bx = (scene.tri_soa[base + 3 + r.kx] - okx) - bz * r.s[0]
-    by = (scene.tri_soa[base + 3 + r.ky] - oky) - bz * r.s[1]
-    cx = (scene.tri_soa[base + 6 + r.kx] - okx) - cz * r.s[0]
-    cy = (scene.tri_soa[base + 6 + r.ky] - oky) - cz * r.s[1]
+def closest_of_four(r: RayShear, o_k: wp.vec3, akx: wp.vec4, aky: wp.vec4, akz: wp.vec4, bkx: wp.vec4,
+                    bky: wp.vec4, bkz: wp.vec4, ckx: wp.vec4, cky: wp.vec4, ckz: wp.vec4, tmax: float) -> LeafHit:
+    """The watertight test (Woop, Benthin and Wald) on four triangles at once: corner coordinates along the ray's
+    permuted axes kx, ky, kz (``o_k`` the origin's), one triangle per lane, NaN in unused lanes (every comparison
+    rejects them), so the shear and the edge functions are four-wide operations. The nearest hit in
+    0 <= t < tmax: ``lane`` -1 if none; u, v weight corners a and b. Either side counts; a degenerate (zero-area)
+    triangle is never hit. t = 0 counts, as in Warp's test: a ray spawned exactly on a cube's edge, offset along one
+    face's normal, starts in the adjacent face's plane, and must not leave through that face."""
+    okx = wp.vec4(o_k[0])
+    oky = wp.vec4(o_k[1])
+    okz = wp.vec4(o_k[2])
+    az = akz - okz
+    bz = bkz - okz
+    cz = ckz - okz
+    ax = (akx - okx) - az * r.s[0]
+    ay = (aky - oky) - az * r.s[1]
+    bx = (bkx - okx) - bz * r.s[0]
+    by = (bky - oky) - bz * r.s[1]
+    cx = (ckx - okx) - cz * r.s[0]
+    cy = (cky - oky) - cz * r.s[1]
     U = wp.cw_mul(cx, by) - wp.cw_mul(cy, bx)
     V = wp.cw_mul(ax, cy) - wp.cw_mul(ay, cx)
     W = wp.cw_mul(bx, ay) - wp.cw_mul(by, ax)
@@ -248,6 +216,36 @@ def leaf_closest(scene: SceneData, leaf: int, o: wp.vec3, r: RayShear, tmax: flo
         best.u = wp.abs(U[best.lane]) * inv
         best.v = wp.abs(V[best.lane]) * inv
     return best
+
+
+@wp.func
+def leaf_closest(scene: SceneData, leaf: int, o: wp.vec3, r: RayShear, tmax: float) -> LeafHit:
+    """``closest_of_four`` on the up to four triangles of one leaf block, which stores each corner's x, y and z of
+    its four triangles as vec4s (``tri_soa[9 leaf + 3 corner + axis]``)."""
+    base = 9 * leaf
+    return closest_of_four(r, wp.vec3(o[r.kx], o[r.ky], o[r.kz]),
+                           scene.tri_soa[base + r.kx], scene.tri_soa[base + r.ky], scene.tri_soa[base + r.kz],
+                           scene.tri_soa[base + 3 + r.kx], scene.tri_soa[base + 3 + r.ky],
+                           scene.tri_soa[base + 3 + r.kz], scene.tri_soa[base + 6 + r.kx],
+                           scene.tri_soa[base + 6 + r.ky], scene.tri_soa[base + 6 + r.kz], tmax)
+
+
+@wp.func
+def lane0(x: float) -> wp.vec4:
+    nan = wp.float32(wp.nan)
+    return wp.vec4(x, nan, nan, nan)
+
+
+@wp.func
+def ray_triangle(o: wp.vec3, r: RayShear, a: wp.vec3, b: wp.vec3, c: wp.vec3, tmax: float) -> wp.vec3:
+    """(t, u, v) of the hit of ray o + t d (the ``RayShear`` of d) with triangle abc in 0 <= t < tmax; t = -1 on a
+    miss: ``closest_of_four`` with the triangle in lane 0 (the leaves' own arithmetic, for tests of one triangle)."""
+    h = closest_of_four(r, wp.vec3(o[r.kx], o[r.ky], o[r.kz]), lane0(a[r.kx]), lane0(a[r.ky]), lane0(a[r.kz]),
+                        lane0(b[r.kx]), lane0(b[r.ky]), lane0(b[r.kz]), lane0(c[r.kx]), lane0(c[r.ky]),
+                        lane0(c[r.kz]), tmax)
+    if h.lane < 0:
+        return wp.vec3(-1.0, 0.0, 0.0)
+    return wp.vec3(h.t, h.u, h.v)
 
 
 @wp.struct
