@@ -39,7 +39,8 @@ def pilot_seed(seed: int) -> int:
 
 @dataclass
 class Combined:
-    """Means of independent estimators of one image, weighted by the inverse of their estimated error."""
+    """Means of independent estimators of one image, with fixed weights summing to 1 (``render_auto``: the winner's
+    1, the loser's pilot 0, which still counts in ``seconds``)."""
 
     parts: list[PassSum]
     weights: list[float]
@@ -71,18 +72,6 @@ class Combined:
     @property
     def discarded(self) -> int:
         return sum(p.discarded for w, p in zip(self.weights, self.parts) if w > 0)
-
-
-def inverse_error_weights(parts: list[PassSum]) -> list[float]:
-    """w_k proportional to 1 / relMSE_k (each part's image-wide error estimate), summing to 1; by pass counts
-    when an estimate is missing."""
-    err = [p.relmse_estimate for p in parts]
-    if all(np.isfinite(e) and e > 0 for e in err):
-        inv = [1.0 / e for e in err]
-    else:
-        inv = [float(p.passes) for p in parts]
-    total = sum(inv)
-    return [x / total for x in inv]
 
 
 def pilot_passes(spp: int, replicates: int) -> int:
@@ -134,7 +123,7 @@ def render_auto(path: Renderer, traced: Renderer, seed: int, spp: int, progress:
     cost = {"path": max(measured, predicted),
             "light_tracing": b.relmse_estimate * p * LIGHT_TRACING_COST}
     use_lt = cost["light_tracing"] < cost["path"]
-    rest = spp - p  # the winner renders all spp passes (a power of two stays one, for Sobol'); the loser's pilot adds
+    rest = spp - p  # the winner renders all spp passes (a power of two stays one, for Sobol')
     if use_lt:
         b = b + traced.render_passes(seed=seed_b, first_pass=p, count=rest, progress=progress)
     else:

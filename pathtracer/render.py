@@ -525,7 +525,8 @@ def render(
     light_sampling: "area" (default) or "solid_angle" (rectangular lights sampled uniformly in solid angle).
     light_tracing: caustics seen directly from light paths (see ``Renderer``): True, False, or None / "auto"
     (default): where the scene allows it, a pilot of 1/32 of the passes with and without decides, and counts
-    toward the image (pathtracer/estimator.py: the winner renders spp passes, the loser's pilot adds spp / 32).
+    toward the image (pathtracer/estimator.py: the winner renders spp passes, its pilot among them; the loser's
+    pilot is left out).
     With a callback, auto means off.
     triangles: "wide" (default) or "warp" (see ``Renderer``).
     replicates: independent Sobol' scrambles the passes are dealt to (pass p to p mod R; default 4), whose spread

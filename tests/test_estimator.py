@@ -33,14 +33,18 @@ def _sums(value, var, passes):
     return PassSum(total, total * value + var * passes * passes, passes)  # per-pass variance `var * passes`
 
 
-def test_weights_are_inverse_errors_and_sum_to_one():
+def test_combination_of_two_estimates():
     a, b = _sums(1.0, 0.04, 10), _sums(1.0, 0.01, 10)  # b's error is four times smaller
-    w = estimator.inverse_error_weights([a, b])
+    inv = [1.0 / a.relmse_estimate, 1.0 / b.relmse_estimate]
+    w = [x / sum(inv) for x in inv]  # inverse-error weights
     assert sum(w) == pytest.approx(1.0) and w[1] == pytest.approx(4 * w[0], rel=1e-6)
     c = estimator.Combined([a, b], w)
     # the combination's variance is the weighted sum, below either part's
     assert np.all(c.variance_of_mean < np.minimum(a.variance_of_mean, b.variance_of_mean))
     assert np.allclose(c.mean, 1.0)
+    # a part with weight 0 (the loser's pilot) adds its time, not its passes
+    drop = estimator.Combined([a, b], [0.0, 1.0])
+    assert drop.passes == 10 and np.array_equal(drop.variance_of_mean, b.variance_of_mean)
 
 
 @pytest.mark.parametrize("name,expect", [("cornell_box_mirror.xml", True), ("open_sky.xml", False)])
