@@ -88,6 +88,30 @@ def _highest_bit(x: np.ndarray) -> np.ndarray:
     return b
 
 
+def _split_levels(n: int, leaf_size: int, choose_cut) -> tuple[list, int]:
+    """Plan a binary tree over n primitives level by level: every range of more than ``leaf_size`` is cut in two
+    at ``choose_cut(starts, sizes, level)`` (one cut per range, for all of a level's ranges at once; it may reorder
+    the ranges' primitives first). Returns, per level, (node ids, range starts, sizes, first child of each inner
+    node or -1), and the node count: what ``_bottom_up`` turns into the node arrays."""
+    levels = []
+    ids, starts, sizes = np.array([0]), np.array([0]), np.array([n])
+    next_id = 1
+    while len(ids):
+        inner = sizes > leaf_size
+        children = np.full(len(ids), -1)
+        children[inner] = next_id + 2 * np.arange(int(inner.sum()))
+        levels.append((ids, starts, sizes, children))
+        if not inner.any():
+            break
+        ids_in, starts, sizes = children[inner], starts[inner], sizes[inner]
+        next_id += 2 * len(ids_in)
+        cut = choose_cut(starts, sizes, len(levels))
+        ids = np.stack([ids_in, ids_in + 1], axis=1).reshape(-1)
+        starts, sizes = (np.stack([starts, starts + cut], axis=1).reshape(-1),
+                         np.stack([cut, sizes - cut], axis=1).reshape(-1))
+    return levels, next_id
+
+
 def build_morton_tree(lower: np.ndarray, upper: np.ndarray, leaf_size: int = LEAF_SIZE) -> BoxTree:
     """A linear BVH (Karras 2012, built level by level): the boxes sorted once by the Morton code of their centres,
     every range cut where its codes' highest differing bit changes (found by a binary search in the sorted
@@ -101,29 +125,19 @@ def build_morton_tree(lower: np.ndarray, upper: np.ndarray, leaf_size: int = LEA
     codes = morton_codes(np.ascontiguousarray(lower), np.ascontiguousarray(upper))
     perm = np.argsort(codes, kind="stable")
     codes = codes[perm]
-    levels = []
-    ids, starts, sizes = np.array([0]), np.array([0]), np.array([n])
-    next_id = 1
-    while len(ids):
-        inner = sizes > leaf_size
-        children = np.full(len(ids), -1)
-        children[inner] = next_id + 2 * np.arange(int(inner.sum()))
-        levels.append((ids, starts, sizes, children))
-        if not inner.any():
-            break
-        ids_in, starts, sizes = children[inner], starts[inner], sizes[inner]
-        next_id += 2 * len(ids_in)
+
+    def choose_cut(starts, sizes, level):
         first, last = codes[starts], codes[starts + sizes - 1]
         cut = sizes // 2
         differ = first != last
-        if len(levels) <= MORTON_MEDIAN_LEVELS and differ.any():
+        if level <= MORTON_MEDIAN_LEVELS and differ.any():
             f = first[differ]
             bit = _highest_bit(f ^ last[differ])
             threshold = ((f >> bit) | np.uint64(1)) << bit
             cut[differ] = np.searchsorted(codes, threshold, side="left") - starts[differ]
-        ids = np.stack([ids_in, ids_in + 1], axis=1).reshape(-1)
-        starts, sizes = (np.stack([starts, starts + cut], axis=1).reshape(-1),
-                         np.stack([cut, sizes - cut], axis=1).reshape(-1))
+        return cut
+
+    levels, next_id = _split_levels(n, leaf_size, choose_cut)
     return _bottom_up(levels, next_id, perm, lower, upper)
 
 
@@ -148,18 +162,8 @@ def build_box_tree(lower: np.ndarray, upper: np.ndarray, leaf_size: int = LEAF_S
     centre = 0.5 * (lower.astype(np.float64) + upper.astype(np.float64))
     lo64, hi64 = lower.astype(np.float64), upper.astype(np.float64)
     perm = np.arange(n)
-    levels = []  # per level: (node ids, starts, sizes, first child of each inner node)
-    ids, starts, sizes = np.array([0]), np.array([0]), np.array([n])
-    next_id = 1
-    while len(ids):
-        inner = sizes > leaf_size
-        children = np.full(len(ids), -1)
-        children[inner] = next_id + 2 * np.arange(int(inner.sum()))
-        levels.append((ids, starts, sizes, children))
-        if not inner.any():
-            break
-        ids_in, starts, sizes = children[inner], starts[inner], sizes[inner]
-        next_id += 2 * len(ids_in)
+
+    def choose_cut(starts, sizes, level):
         pos, seg = _ranges(starts, sizes)
         c = centre[perm[pos]]
         offsets = np.cumsum(sizes) - sizes
@@ -169,13 +173,13 @@ def build_box_tree(lower: np.ndarray, upper: np.ndarray, leaf_size: int = LEAF_S
         order = np.lexsort((key, seg))  # by range, then along its axis: ranges stay where they are
         perm[pos] = perm[pos[order]]
         cut = sizes // 2
-        if len(levels) <= SAH_LEVELS:
+        if level <= SAH_LEVELS:
             for j in np.nonzero(sizes >= SAH_MIN)[0]:
                 p = perm[starts[j]:starts[j] + sizes[j]]
                 cut[j] = _sah_split(lo64[p], hi64[p])
-        ids = np.stack([ids_in, ids_in + 1], axis=1).reshape(-1)
-        starts, sizes = (np.stack([starts, starts + cut], axis=1).reshape(-1),
-                         np.stack([cut, sizes - cut], axis=1).reshape(-1))
+        return cut
+
+    levels, next_id = _split_levels(n, leaf_size, choose_cut)
     return _bottom_up(levels, next_id, perm, lower, upper)
 
 
