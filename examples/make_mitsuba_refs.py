@@ -26,12 +26,18 @@ WIDTH, HEIGHT = 64, 48
 SCENES = ["cornell_box", "cornell_box_mirror", "teapot_in_box", "open_sky"]
 
 
+FEATURES = ROOT / "scenes" / "features"  # one small scene per loader or renderer feature (issue 10)
+
+
 def cases() -> list[tuple[str, int | None]]:
-    """(scene, max_depth override): the file's own depth (None) and direct lighting (2)."""
-    return [(s, d) for s in SCENES for d in (None, 2)]
+    """(scene path below scenes/ without .xml, max_depth override): the seed scenes at their own depth (None) and as
+    direct lighting (2); each feature scene at its own depth."""
+    seed = [(s, d) for s in SCENES for d in (None, 2)]
+    return seed + [(f"features/{p.stem}", None) for p in sorted(FEATURES.glob("*.xml"))]
 
 
 def ref_name(scene: str, max_depth: int | None) -> str:
+    scene = scene.replace("features/", "feature_")
     return scene if max_depth is None else f"{scene}_d{max_depth}"
 
 
@@ -44,13 +50,21 @@ def main(argv=None) -> int:
     ap.add_argument("--spp", type=int, default=65536, help="samples per pixel in all (split into batches)")
     ap.add_argument("--batches", type=int, default=16)
     ap.add_argument("--out", default=str(ROOT / "tests" / "data" / "refs"))
+    ap.add_argument("--only", nargs="*", help="make only these references (names as in refs.json); keep the rest")
     a = ap.parse_args(argv)
     mi.set_variant("llvm_ad_rgb" if os.environ.get("DRJIT_LIBLLVM_PATH") else "scalar_rgb")
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     meta = {"width": WIDTH, "height": HEIGHT, "spp": a.spp, "batches": a.batches, "mitsuba": mi.__version__,
             "variant": mi.variant(), "refs": {}}
+    if a.only:
+        old = json.loads((out / "refs.json").read_text())
+        if (old["width"], old["height"], old["spp"], old["batches"]) != (WIDTH, HEIGHT, a.spp, a.batches):
+            raise SystemExit("--only: refs.json was made with other sizes; make them all again")
+        meta["refs"] = old["refs"]
     for scene_name, depth in cases():
+        if a.only and ref_name(scene_name, depth) not in a.only:
+            continue
         params = {"width": str(WIDTH), "height": str(HEIGHT)}
         if depth is not None:
             params["max_depth"] = str(depth)
@@ -64,7 +78,8 @@ def main(argv=None) -> int:
         name = ref_name(scene_name, depth)
         pathtracer.write_image(out / f"{name}.exr", mean)
         pathtracer.write_image(out / f"{name}_var.exr", var)
-        meta["refs"][name] = {"scene": f"scenes/{scene_name}.xml", "max_depth": depth}
+        meta["refs"][name] = {"scene": f"scenes/{scene_name}.xml", "max_depth": depth,
+                              "group": "feature" if scene_name.startswith("features/") else "seed"}
         print(f"{name}: mean {mean.mean():.5f}, {time.perf_counter() - t0:.1f} s", flush=True)
     (out / "refs.json").write_text(json.dumps(meta, indent=1))
     return 0

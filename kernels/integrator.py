@@ -23,7 +23,8 @@ from dataclasses import dataclass
 
 import warp as wp
 
-from kernels.camera import camera_ray
+from kernels.camera import camera_ray, thin_lens_ray
+from kernels.film import filter_offset
 from kernels.mesh import mesh_hit, smooth_normal, sphere_hit
 from kernels.triangle import mesh_closest, mesh_occluded
 from kernels.triangle_warp import warp_mesh_closest, warp_mesh_occluded
@@ -79,6 +80,8 @@ class Features:
     count_rays: bool = False  # instrumented variant for benchmarks: counts closest-hit and shadow rays
     light_tracing: bool = False  # caustics seen directly are left to the light tracer (kernels/light_tracer.py)
     triangles: int = TRIANGLES_WIDE  # the triangle backend
+    pixel_filter: bool = False  # film offsets drawn from a tabulated filter (kernels/film.py); False: box
+    thin_lens: bool = False  # Mitsuba's thinlens camera (depth of field) instead of the pinhole
 
 
 @wp.struct
@@ -187,6 +190,8 @@ def make_render_kernel(features: Features):
     SOBOL = features.sampler == SAMPLER_SOBOL
     draw4 = padded_sobol4 if SOBOL else independent4  # picked at compile time
     LIGHT_TRACING = features.light_tracing
+    PIXEL_FILTER = features.pixel_filter
+    THIN_LENS = features.thin_lens
 
     trace, occluded = make_tracers(features)
 
@@ -199,7 +204,15 @@ def make_render_kernel(features: Features):
 
         # ---------------- camera ray ----------------
         jitter = wp.static(draw4)(key, wp.uint32(0), 0)
-        ray = camera_ray(cam, col, row, jitter[0], jitter[1])
+        jx = jitter[0]
+        jy = jitter[1]
+        if wp.static(PIXEL_FILTER):  # filter importance sampling: offsets from the pixel centre
+            jx = 0.5 + filter_offset(cam.filter_cdf, cam.filter_radius, col, cam.width, cam.filter_border, jx)
+            jy = 0.5 + filter_offset(cam.filter_cdf, cam.filter_radius, row, cam.height, cam.filter_border, jy)
+        if wp.static(THIN_LENS):
+            ray = thin_lens_ray(cam, col, row, jx, jy, jitter[2], jitter[3])
+        else:
+            ray = camera_ray(cam, col, row, jx, jy)
         o = ray.o
         d = ray.d
         tmax = ray.tmax

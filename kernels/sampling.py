@@ -38,3 +38,21 @@ def sample_parallelogram(center: wp.vec3, half_u: wp.vec3, half_v: wp.vec3, u1: 
 def reflect(d: wp.vec3, n: wp.vec3) -> wp.vec3:
     """Mirror direction of incoming ``d`` about unit ``n``: d - 2 (d.n) n."""
     return d - 2.0 * wp.dot(d, n) * n
+
+
+@wp.func
+def square_to_disk_concentric(u1: float, u2: float) -> wp.vec2:
+    """Shirley-Chiu concentric map of [0, 1)^2 onto the unit disk (uniform; Mitsuba's square_to_uniform_disk_concentric)."""
+    x = 2.0 * u1 - 1.0
+    y = 2.0 * u2 - 1.0
+    if x == 0.0 and y == 0.0:
+        return wp.vec2(0.0, 0.0)
+    r = float(0.0)
+    phi = float(0.0)
+    if wp.abs(x) < wp.abs(y):
+        r = y
+        phi = 0.5 * wp.pi - 0.25 * wp.pi * (x / y)
+    else:
+        r = x
+        phi = 0.25 * wp.pi * (y / x)
+    return wp.vec2(r * wp.cos(phi), r * wp.sin(phi))

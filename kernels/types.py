@@ -16,6 +16,11 @@ class CameraData:
     far_clip: float
     width: int
     height: int
+    filter_cdf: wp.array(dtype=float)  # the reconstruction filter's CDF table (kernels/film.py), empty for box
+    filter_radius: float
+    filter_border: int  # pixels sampled beyond the film's edges (Mitsuba's sample_border), 0 when not
+    aperture_radius: float  # thin lens only
+    focus_distance: float
 
 
 @wp.struct

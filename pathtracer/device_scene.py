@@ -14,6 +14,7 @@ from kernels.types import CameraData, SceneData
 from kernels.triangle import STACK_SIZE
 from pathtracer.bvh import BoxTree, WideTree, build_tree, collapse_wide, leaf_lanes
 from pathtracer.errors import RenderError
+from pathtracer.rfilter import filter_cdf
 from pathtracer.scene import MIRROR, Scene, TriangleMesh
 
 
@@ -292,7 +293,7 @@ class DeviceScene:
         d.light_quad = _arr(light_quad, wp.int32, device)
         d.light_rect = _arr([int(is_rectangle(l.half_u, l.half_v)) for l in lights], wp.int32, device)
         self.data = d
-        self.camera = camera_data(scene)
+        self.camera = camera_data(scene, device)
 
     @staticmethod
     def features(scene: Scene, view: str = "radiance", rr: str = "throughput", sampler: str = "independent",
@@ -313,10 +314,12 @@ class DeviceScene:
             light_sampling=LIGHT_SAMPLINGS[light_sampling],
             count_rays=count_rays,
             triangles=TRIANGLES[triangles],
+            pixel_filter=not scene.rfilter.is_box,
+            thin_lens=scene.camera.aperture_radius > 0,
         )
 
 
-def camera_data(scene: Scene) -> CameraData:
+def camera_data(scene: Scene, device=None) -> CameraData:
     cam = scene.camera
     c = CameraData()
     m = np.asarray(cam.to_world, dtype=np.float64)
@@ -328,4 +331,12 @@ def camera_data(scene: Scene) -> CameraData:
     c.far_clip = float(cam.far_clip)
     c.width = scene.width
     c.height = scene.height
+    f = scene.rfilter
+    table = np.zeros(0, dtype=np.float32) if f.is_box else filter_cdf(f).astype(np.float32)
+    c.filter_cdf = wp.array(table, dtype=wp.float32, device=device)
+    c.filter_radius = float(f.radius)
+    # Mitsuba: border_size = ceil(radius - 0.5 - 2 RayEpsilon), 0 for the box
+    c.filter_border = int(np.ceil(f.radius - 0.5 - 2 * 2.0**-24)) if scene.sample_border and not f.is_box else 0
+    c.aperture_radius = float(cam.aperture_radius)
+    c.focus_distance = float(cam.focus_distance)
     return c

@@ -8,13 +8,20 @@ semantics, defaults and checks live here, once. Supported subset, with Mitsuba 3
 element     type         properties (default)
 =========== ============ ==========================================================================
 integrator  path         max_depth (-1, unlimited; >= -1), rr_depth (5; > 0), hide_emitters (false)
-sensor      perspective  fov (required, degrees, 0 < fov < 180), fov_axis (x | y | diagonal |
-                         smaller | larger), near_clip (0.01), far_clip (10000), to_world (rigid)
+sensor      perspective  fov (degrees, 0 < fov < 180) with fov_axis (x | y | diagonal | smaller |
+                         larger), or focal_length ("50mm": the diagonal fov of a 36 x 24 mm film),
+                         near_clip (0.01), far_clip (10000), to_world (rigid); focus_distance,
+                         shutter_open/close and principal_point_offset_x/y (0 only) are accepted
+sensor      thinlens     the same, and aperture_radius (required), focus_distance (far_clip)
 sampler     independent  sample_count (4; > 0), seed (0)
-film        hdrfilm      width (768), height (576), pixel_format (rgb only), component_format
+film        hdrfilm      width (768), height (576), sample_border (false), crop_* (the whole film
+                         only), file_format, banner, compensate (they only change Mitsuba's own
+                         output file), pixel_format (rgb only), component_format
                          (float16 | float32; storage precision only, never changes the image);
-                         rfilter box; a film with no rfilter (Mitsuba's gaussian default) is
-                         accepted and box-filtered, an explicit gaussian is refused
+                         rfilter (gaussian, Mitsuba's default, when none is given)
+rfilter     box          (radius 0.5: each sample counts in its own pixel)
+rfilter     tent         radius (1.0; in (0, 64] pixels)
+rfilter     gaussian     stddev (0.5; in (0, 64] pixels), radius 4 stddev
 bsdf        diffuse      reflectance (0.5; rgb or float in [0, 1])
 bsdf        conductor    material ("none" only: a perfect mirror), specular_reflectance (1.0)
 bsdf        twosided     exactly one nested diffuse or conductor
@@ -62,7 +69,8 @@ from . import meshio
 from . import transform as tf
 from .errors import SceneError
 from .loader_xml import Point3, XmlDict, parse_file
-from .scene import DEFAULT_MATERIAL, Camera, Integrator, Material, RectLight, Scene, Sphere, TriangleMesh
+from .scene import (DEFAULT_MATERIAL, Camera, Integrator, Material, PixelFilter, RectLight, Scene, Sphere,
+                    TriangleMesh)
 
 FLOAT, INT, BOOL, STRING, POINT, COLOR, TRANSFORM = "float", "integer", "boolean", "string", "point", "rgb", "transform"
 UINT32_MAX = 2**32 - 1
@@ -77,12 +85,22 @@ class Plugin:
 
 PLUGINS = {
     "path": Plugin("integrator", {"max_depth": INT, "rr_depth": INT, "hide_emitters": BOOL}),
-    "perspective": Plugin("sensor", {"fov": FLOAT, "fov_axis": STRING, "near_clip": FLOAT, "far_clip": FLOAT,
-                                     "to_world": TRANSFORM}, ("film", "sampler")),
+    "perspective": Plugin("sensor", {"fov": FLOAT, "focal_length": STRING, "fov_axis": STRING, "near_clip": FLOAT,
+                                     "far_clip": FLOAT, "focus_distance": FLOAT, "principal_point_offset_x": FLOAT,
+                                     "principal_point_offset_y": FLOAT, "shutter_open": FLOAT,
+                                     "shutter_close": FLOAT, "to_world": TRANSFORM}, ("film", "sampler")),
+    "thinlens": Plugin("sensor", {"fov": FLOAT, "focal_length": STRING, "fov_axis": STRING, "near_clip": FLOAT,
+                                  "far_clip": FLOAT, "focus_distance": FLOAT, "aperture_radius": FLOAT,
+                                  "shutter_open": FLOAT, "shutter_close": FLOAT, "to_world": TRANSFORM},
+                       ("film", "sampler")),
     "independent": Plugin("sampler", {"sample_count": INT, "seed": INT}),
-    "hdrfilm": Plugin("film", {"width": INT, "height": INT, "pixel_format": STRING, "component_format": STRING},
+    "hdrfilm": Plugin("film", {"width": INT, "height": INT, "pixel_format": STRING, "component_format": STRING,
+                               "file_format": STRING, "banner": BOOL, "compensate": BOOL, "sample_border": BOOL,
+                               "crop_offset_x": INT, "crop_offset_y": INT, "crop_width": INT, "crop_height": INT},
                       ("rfilter",)),
     "box": Plugin("rfilter", {}),
+    "tent": Plugin("rfilter", {"radius": FLOAT}),
+    "gaussian": Plugin("rfilter", {"stddev": FLOAT}),
     "diffuse": Plugin("bsdf", {"reflectance": COLOR}),
     "conductor": Plugin("bsdf", {"material": STRING, "specular_reflectance": COLOR}),
     "twosided": Plugin("bsdf", {}, ("bsdf",)),
@@ -117,7 +135,6 @@ MITSUBA_TYPES = {
 TYPE_CATEGORY = {t: cat for cat, names in MITSUBA_TYPES.items() for t in names.split()}
 VALUE_TYPES = {"rgb", "spectrum", "ref"}
 HINTS = {
-    "focal_length": ' (give "fov" in degrees instead)',
     "eta": ' (only material="none", a perfect mirror, is supported)',
     "k": ' (only material="none", a perfect mirror, is supported)',
 }
@@ -271,9 +288,6 @@ class _Builder:
             self.fail(where, f"a {cat} cannot appear here (expected: {' or '.join(expected)})")
         spec = PLUGINS.get(t)
         if spec is None or spec.category != cat:
-            if cat == "rfilter" and t == "gaussian":
-                self.fail(where, 'rfilter "gaussian" is not supported (supported: box; a film with no '
-                                 'rfilter is accepted and box-filtered)')
             self.fail(where, f'{cat} type "{t}" is not supported (supported: {_types_of(cat) or "none"})')
         return spec
 
@@ -476,24 +490,37 @@ class _Builder:
         props, objs = self.fields(node, path, spec)
         where = _where(node, path)
         w = lambda k: _prop_where(node, path, k)  # noqa: E731
-        if "fov" not in props:
-            self.fail(where, 'the perspective sensor needs "fov" (degrees, measured along "fov_axis")')
-        fov = self.value(node, path, props, "fov", FLOAT)
-        self.in_range(w("fov"), "fov", fov, 0.0 < fov < 180.0, "in (0, 180) degrees")
-        fov_axis = self.value(node, path, props, "fov_axis", STRING, "x")
-        if fov_axis not in FOV_AXES:
-            self.fail(w("fov_axis"), f'fov_axis "{fov_axis}" is not one of {", ".join(FOV_AXES)}')
+        fov, fov_axis = self.field_of_view(node, path, props)
         near = self.value(node, path, props, "near_clip", FLOAT, 1e-2)
         self.in_range(w("near_clip"), "near_clip", near, near > 0, "> 0")
         far = self.value(node, path, props, "far_clip", FLOAT, 1e4)
         self.in_range(w("far_clip"), "far_clip", far, far > near, f"> near_clip ({near})")
+        # Mitsuba reads focus_distance on every projective camera (a pinhole ignores it); default far_clip
+        focus = self.value(node, path, props, "focus_distance", FLOAT, far)
+        self.in_range(w("focus_distance"), "focus_distance", focus, focus > 0, "> 0")
+        for key in ("principal_point_offset_x", "principal_point_offset_y"):
+            v = self.value(node, path, props, key, FLOAT, 0.0)
+            if v != 0.0:
+                self.fail(w(key), f"{key} other than 0 (an off-centre projection) is not supported")
+        t_open = self.value(node, path, props, "shutter_open", FLOAT, 0.0)
+        t_close = self.value(node, path, props, "shutter_close", FLOAT, 0.0)
+        self.in_range(w("shutter_close"), "shutter_close", t_close, t_close >= t_open,
+                      f">= shutter_open ({t_open}); nothing moves, so the shutter changes nothing")
+        aperture = 0.0
+        if node["type"] == "thinlens":
+            if "aperture_radius" not in props:
+                self.fail(where, 'the thinlens sensor needs "aperture_radius" (the lens radius, in world units)')
+            aperture = self.value(node, path, props, "aperture_radius", FLOAT)
+            self.in_range(w("aperture_radius"), "aperture_radius", aperture, aperture >= 0, ">= 0")
+            aperture = max(aperture, 2.0**-24)  # Mitsuba: 0 warns and becomes its Epsilon
         m = self.value(node, path, props, "to_world", TRANSFORM, np.eye(4))
         lin = m[:3, :3]
         if np.max(np.abs(lin.T @ lin - np.eye(3))) > 1e-3:
             self.fail(w("to_world"), "the sensor's to_world may only rotate and translate "
                                      "(scale factors are not allowed, as in Mitsuba)")
-        camera = Camera(to_world=m, fov=fov, fov_axis=fov_axis, near_clip=near, far_clip=far)
-        scene = Scene(camera=camera)
+        camera = Camera(to_world=m, fov=fov, fov_axis=fov_axis, near_clip=near, far_clip=far,
+                        aperture_radius=aperture, focus_distance=focus)
+        scene = Scene(camera=camera, rfilter=PixelFilter.gaussian())  # Mitsuba's film and filter by default
 
         sampler = self.one(objs, "sampler", where)
         if sampler is not None:
@@ -522,11 +549,60 @@ class _Builder:
             if cf not in ("float16", "float32"):
                 self.fail(fw("component_format"), f'component_format "{cf}" is not supported '
                                                   f"(supported: float16, float32)")
+            ff = self.value(film.node, film.path, f_props, "file_format", STRING, "openexr")
+            if ff not in ("openexr", "exr", "rgbe", "pfm"):
+                self.fail(fw("file_format"), f'file_format "{ff}" is not one of openexr, exr, rgbe, pfm')
+            # file_format, banner and compensate only change Mitsuba's own output file: ours is named by -o
+            self.value(film.node, film.path, f_props, "banner", BOOL, True)
+            self.value(film.node, film.path, f_props, "compensate", BOOL, False)
+            scene.sample_border = self.value(film.node, film.path, f_props, "sample_border", BOOL, False)
+            crop = [self.value(film.node, film.path, f_props, k, INT, d) for k, d in
+                    (("crop_offset_x", 0), ("crop_offset_y", 0), ("crop_width", scene.width),
+                     ("crop_height", scene.height))]
+            if crop != [0, 0, scene.width, scene.height]:
+                key = next(k for k in ("crop_offset_x", "crop_offset_y", "crop_width", "crop_height") if k in f_props)
+                self.fail(fw(key), "a crop window other than the whole film is not supported")
             rfilter = self.one(f_objs, "rfilter", _where(film.node, film.path))
             if rfilter is not None:
-                r_spec = self.spec(rfilter.node, rfilter.path, ("rfilter",))
-                self.fields(rfilter.node, rfilter.path, r_spec)
+                scene.rfilter = self.rfilter(rfilter.node, rfilter.path)
         return scene
+
+    def field_of_view(self, node: Mapping, path: str, props: dict) -> tuple[float, str]:
+        """(fov in degrees, its axis), as Mitsuba's parse_fov: ``fov`` along ``fov_axis``, or ``focal_length`` (a
+        string in mm, default "50mm") as the diagonal field of view of a 36 x 24 mm film."""
+        w = lambda k: _prop_where(node, path, k)  # noqa: E731
+        if "fov" in props and "focal_length" in props:
+            self.fail(w("focal_length"), 'give "fov" or "focal_length", not both')
+        if "fov" in props:
+            fov = self.value(node, path, props, "fov", FLOAT)
+            self.in_range(w("fov"), "fov", fov, 0.0 < fov < 180.0, "in (0, 180) degrees")
+            fov_axis = self.value(node, path, props, "fov_axis", STRING, "x").lower()
+            if fov_axis not in FOV_AXES:
+                self.fail(w("fov_axis"), f'fov_axis "{fov_axis}" is not one of {", ".join(FOV_AXES)}')
+            return fov, fov_axis
+        if "fov_axis" in props:
+            self.fail(w("fov_axis"), 'fov_axis applies to "fov" only (a focal_length is always diagonal)')
+        text = self.value(node, path, props, "focal_length", STRING, "50mm")
+        number = text[:-2] if text.endswith("mm") else text
+        try:
+            f = float(number)
+        except ValueError:
+            f = float("nan")
+        if not (np.isfinite(f) and f > 0):
+            self.fail(w("focal_length"), f'focal_length "{text}" must be a positive length in mm (e.g. "50mm")')
+        return float(np.degrees(2.0 * np.arctan(np.hypot(36.0, 24.0) / (2.0 * f)))), "diagonal"
+
+    def rfilter(self, node: Mapping, path: str) -> PixelFilter:
+        spec = self.spec(node, path, ("rfilter",))
+        props, _ = self.fields(node, path, spec)
+        t = node["type"]
+        if t == "box":
+            return PixelFilter("box")
+        key, default = ("radius", 1.0) if t == "tent" else ("stddev", 0.5)
+        v = self.value(node, path, props, key, FLOAT, default)
+        # a filter wider than 64 pixels is almost certainly a unit mistake (and a huge splat in Mitsuba)
+        self.in_range(_prop_where(node, path, key), key, v, 0.0 < v <= 64.0, "in (0, 64] pixels")
+        return PixelFilter("tent", v) if t == "tent" else PixelFilter.gaussian(v)
 
     def material(self, node: Mapping, path: str) -> Material:
         key = id(node)

@@ -36,9 +36,43 @@ class Material:
 DEFAULT_MATERIAL = Material("diffuse", (0.5, 0.5, 0.5))  # Mitsuba's bsdf for a shape that names none
 
 
+@dataclass(frozen=True)
+class PixelFilter:
+    """A film's reconstruction filter, as Mitsuba's separable rfilters: the pixel's value is the filter-weighted
+    mean of the radiance over the film around its centre (weight f(dx) f(dy), dx, dy in pixels), truncated at the
+    film's edges (Mitsuba drops splats that fall outside the film).
+
+    ``box``: f = 1 on [-0.5, 0.5) (each sample counts in its own pixel). ``tent``: max(0, 1 - |x| / radius).
+    ``gaussian``: max(0, exp(-x^2 / (2 stddev^2)) - exp(-radius^2 / (2 stddev^2))), radius = 4 stddev.
+    """
+
+    kind: str = "box"
+    radius: float = 0.5
+    stddev: float = 0.5  # gaussian only
+
+    @staticmethod
+    def gaussian(stddev: float = 0.5) -> "PixelFilter":
+        return PixelFilter("gaussian", 4.0 * stddev, stddev)
+
+    @property
+    def is_box(self) -> bool:
+        return self.kind == "box"
+
+    def eval(self, x) -> np.ndarray:
+        """f(x), x in pixels."""
+        x = np.asarray(x, dtype=np.float64)
+        if self.kind == "box":
+            return ((x >= -0.5) & (x < 0.5)).astype(np.float64)
+        if self.kind == "tent":
+            return np.maximum(0.0, 1.0 - np.abs(x) / self.radius)
+        a = -1.0 / (2.0 * self.stddev**2)
+        return np.maximum(0.0, np.exp(a * x * x) - np.exp(a * self.radius**2))
+
+
 @dataclass
 class Camera:
-    """A pinhole camera as Mitsuba's ``perspective`` sensor: looks along local +z, local +x is image left.
+    """A pinhole camera as Mitsuba's ``perspective`` sensor (or its ``thinlens``, with an aperture): looks along
+    local +z, local +x is image left.
 
     ``fov`` is in degrees along ``fov_axis`` (``x``, ``y``, ``diagonal``, ``smaller`` or ``larger``).
     """
@@ -48,6 +82,8 @@ class Camera:
     fov_axis: str = "x"
     near_clip: float = 1e-2
     far_clip: float = 1e4
+    aperture_radius: float = 0.0  # > 0: Mitsuba's thinlens (a lens disk of this radius, in focus at focus_distance)
+    focus_distance: float = 1e4
 
     def tan_half_fov(self, width: int, height: int) -> tuple[float, float]:
         """tan of the half field of view along image x and y."""
@@ -140,6 +176,8 @@ class Scene:
     meshes: list[TriangleMesh] = field(default_factory=list)
     lights: list[RectLight] = field(default_factory=list)
     source: str = "<scene>"
+    rfilter: PixelFilter = field(default_factory=PixelFilter)  # the loader gives Mitsuba's default, gaussian
+    sample_border: bool = False  # Mitsuba's film option: sample ceil(radius - 0.5) pixels beyond the film's edges
 
     def add_material(self, material: Material) -> int:
         """Index of ``material``, adding it if new."""

@@ -10,6 +10,7 @@ import numpy as np
 import warp as wp
 
 from kernels.camera import camera_ray
+from kernels.film import filter_offset
 from kernels.light_tracer import camera_importance
 from kernels.integrator import light_sample_scale, self_mode
 from kernels.mesh import mesh_hit, smooth_normal, sphere_hit
@@ -23,6 +24,13 @@ from kernels.sphere import SELF_NONE, ray_sphere
 from kernels.types import CameraData, SceneData
 
 INF = wp.constant(3.0e38)
+
+
+@wp.kernel(enable_backward=False)
+def probe_filter_offset(cdf: wp.array(dtype=float), radius: float, pixels: wp.array(dtype=int), size: int,
+                        border: int, us: wp.array(dtype=float), out: wp.array(dtype=float)):
+    i = wp.tid()
+    out[i] = filter_offset(cdf, radius, pixels[i], size, border, us[i])
 
 
 @wp.kernel(enable_backward=False)

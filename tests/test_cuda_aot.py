@@ -39,9 +39,12 @@ OPTIONS = {
 def _variants():
     """(id, scene file, features, with the light tracer) for every distinct variant."""
     seen, out = set(), []
-    for path in sorted(SCENES.glob("*.xml")):
+    features = sorted((SCENES / "features").glob("*.xml"))  # one scene per feature: its default variant only
+    for path in sorted(SCENES.glob("*.xml")) + features:
         scene = pathtracer.load_file(path, width=8, height=6)
         for name, opts in OPTIONS.items():
+            if path in features and name != "default":
+                continue
             opts = {"sampler": "sobol", **opts}
             f = DeviceScene.features(scene, **opts)
             if name == "warp triangles" and not f.meshes:

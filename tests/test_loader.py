@@ -681,10 +681,26 @@ BAD_XML = [
      "could not be read as PLY"),
 ]
 BAD_SENSOR = [
-    ('<sensor type="perspective"/>', '<sensor type="perspective">', 'needs "fov"'),
-    ('<sensor type="perspective"><string name="focal_length" value="50mm"/></sensor>', '<sensor type="perspective">',
-     'property "focal_length" is not supported (supported: fov, fov_axis, near_clip, far_clip, to_world, film, '
-     'sampler) (give "fov" in degrees instead)'),
+    ('<sensor type="perspective"><string name="focal_length" value="3.5cm"/></sensor>',
+     '<string name="focal_length">', 'focal_length "3.5cm" must be a positive length in mm (e.g. "50mm")'),
+    ('<sensor type="perspective"><float name="fov" value="45"/><string name="focal_length" value="50mm"/></sensor>',
+     '<string name="focal_length">', 'give "fov" or "focal_length", not both'),
+    ('<sensor type="perspective"><string name="fov_axis" value="y"/></sensor>', '<string name="fov_axis">',
+     'fov_axis applies to "fov" only'),
+    ('<sensor type="perspective"><float name="fov" value="45"/><float name="aperture_radius" value="0.1"/></sensor>',
+     '<sensor type="perspective">', 'property "aperture_radius" is not supported'),
+    ('<sensor type="perspective"><float name="fov" value="45"/><float name="principal_point_offset_x" value="0.1"/>'
+     '</sensor>', '<float name="principal_point_offset_x">', "off-centre projection) is not supported"),
+    ('<sensor type="thinlens"><float name="fov" value="45"/></sensor>', '<sensor type="thinlens">',
+     'needs "aperture_radius"'),
+    ('<sensor type="thinlens"><float name="fov" value="45"/><float name="aperture_radius" value="-1"/></sensor>',
+     '<float name="aperture_radius">', "aperture_radius must be >= 0 (got -1.0)"),
+    ('<sensor type="thinlens"><float name="fov" value="45"/><float name="aperture_radius" value="0.1"/>'
+     '<float name="focus_distance" value="0"/></sensor>', '<float name="focus_distance">', "focus_distance must be > 0"),
+    ('<sensor type="perspective"><float name="fov" value="45"/><film type="hdrfilm"><integer name="crop_width" '
+     'value="10"/></film></sensor>', '<integer name="crop_width">', "a crop window other than the whole film"),
+    ('<sensor type="perspective"><float name="fov" value="45"/><film type="hdrfilm"><string name="file_format" '
+     'value="png"/></film></sensor>', '<string name="file_format">', 'file_format "png" is not one of'),
     ('<sensor type="perspective"><float name="fov" value="180"/></sensor>', '<float name="fov">', "in (0, 180)"),
     ('<sensor type="perspective"><float name="fov" value="45"/><string name="fov_axis" value="z"/></sensor>',
      '<string name="fov_axis">', 'fov_axis "z" is not one of x, y, diagonal, smaller, larger'),
@@ -694,8 +710,8 @@ BAD_SENSOR = [
      '<float name="far_clip">', "far_clip must be > near_clip"),
     ('<sensor type="perspective"><float name="fov" value="45"/><transform name="to_world"><scale value="2"/>'
      '</transform></sensor>', '<transform name="to_world">', "scale factors are not allowed"),
-    ('<sensor type="thinlens"/>', '<sensor type="thinlens">', 'sensor type "thinlens" is not supported (supported: '
-                                                             'perspective)'),
+    ('<sensor type="orthographic"/>', '<sensor type="orthographic">', 'sensor type "orthographic" is not supported '
+                                                                     '(supported: perspective, thinlens)'),
     ('<sensor type="perspective"><float name="fov" value="45"/><sampler type="independent">'
      '<integer name="sample_count" value="0"/></sampler></sensor>', '<integer name="sample_count">',
      "sample_count must be in [1,"),
@@ -714,8 +730,14 @@ BAD_SENSOR = [
      '<string name="component_format" value="uint8"/></film></sensor>', '<string name="component_format">',
      "not supported (supported: float16, float32)"),
     ('<sensor type="perspective"><float name="fov" value="45"/><film type="hdrfilm">'
-     '<rfilter type="gaussian"/></film></sensor>', '<rfilter type="gaussian">',
-     'rfilter "gaussian" is not supported (supported: box; a film with no rfilter is accepted'),
+     '<rfilter type="mitchell"/></film></sensor>', '<rfilter type="mitchell">',
+     'rfilter type "mitchell" is not supported (supported: box, gaussian, tent)'),
+    ('<sensor type="perspective"><float name="fov" value="45"/><film type="hdrfilm">'
+     '<rfilter type="gaussian"><float name="stddev" value="-0.5"/></rfilter></film></sensor>',
+     '<float name="stddev">', "stddev must be in (0, 64] pixels (got -0.5)"),
+    ('<sensor type="perspective"><float name="fov" value="45"/><film type="hdrfilm">'
+     '<rfilter type="tent"><float name="radius" value="0"/></rfilter></film></sensor>',
+     '<float name="radius">', "radius must be in (0, 64] pixels (got 0.0)"),
     ('<sensor type="perspective"><float name="fov" value="45"/><film type="hdrfilm"/><film type="hdrfilm"/>'
      '</sensor>', '<film type="hdrfilm">', "only one film"),
     ('<sensor type="perspective"><float name="fov" value="45"/><shape type="sphere"/></sensor>',
@@ -1015,3 +1037,35 @@ def test_fuzz_mutated_dicts_raise_only_scene_errors(d):
         assert "\n" not in str(e) and str(e).startswith("<dict>")
     else:
         assert isinstance(scene, Scene)
+
+
+# x field of view (degrees) that Mitsuba 3.9.1 computes (sensor.x_fov) for these sensors on a 300 x 200 film
+# (measured with mi.load_string, see parse_fov in src/render/sensor.cpp)
+MITSUBA_X_FOV = [
+    ("", 39.5978),  # neither fov nor focal_length: "50mm", a diagonal field of view
+    ('<string name="focal_length" value="35mm"/>', 54.4322),
+    ('<string name="focal_length" value="50"/>', 39.5978),
+    ('<float name="fov" value="45"/><string name="fov_axis" value="y"/>', 63.7071),
+    ('<float name="fov" value="45"/><string name="fov_axis" value="diagonal"/>', 38.0327),
+]
+
+
+@pytest.mark.parametrize("props,x_fov", MITSUBA_X_FOV, ids=["default", "35mm", "50", "y", "diagonal"])
+def test_field_of_view_as_mitsuba(tmp_path, props, x_fov):
+    film = '<film type="hdrfilm"><integer name="width" value="300"/><integer name="height" value="200"/></film>'
+    s = load_xml(tmp_path, "", f'<sensor type="perspective">{props}{film}</sensor>')
+    tan_x, _ = s.camera.tan_half_fov(s.width, s.height)
+    assert abs(np.degrees(2 * np.arctan(tan_x)) - x_fov) < 1e-3
+
+
+def test_thinlens_and_accepted_film_properties(tmp_path):
+    film = ('<film type="hdrfilm"><integer name="width" value="30"/><integer name="height" value="20"/>'
+            '<string name="file_format" value="rgbe"/><boolean name="banner" value="false"/>'
+            '<boolean name="sample_border" value="true"/><integer name="crop_width" value="30"/></film>')
+    s = load_xml(tmp_path, "", f'<sensor type="thinlens"><float name="fov" value="30"/>'
+                               f'<float name="aperture_radius" value="0.2"/>{film}</sensor>')
+    assert s.camera.aperture_radius == 0.2 and s.camera.focus_distance == 1e4  # Mitsuba: far_clip by default
+    assert s.sample_border and s.rfilter.kind == "gaussian"
+    p = load_xml(tmp_path, "", '<sensor type="perspective"><float name="fov" value="30"/>'
+                               '<float name="focus_distance" value="3"/></sensor>')
+    assert p.camera.aperture_radius == 0.0  # accepted and unused by a pinhole, as in Mitsuba
