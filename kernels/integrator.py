@@ -25,6 +25,7 @@ import warp as wp
 
 from kernels.camera import camera_ray, thin_lens_ray
 from kernels.film import filter_offset
+from kernels.lights import pick_in_cdf, sample_sphere_cone, sample_triangle_light, spot_falloff
 from kernels.mesh import mesh_hit, smooth_normal, sphere_hit
 from kernels.triangle import mesh_closest, mesh_occluded
 from kernels.triangle_warp import warp_mesh_closest, warp_mesh_occluded
@@ -82,6 +83,13 @@ class Features:
     triangles: int = TRIANGLES_WIDE  # the triangle backend
     pixel_filter: bool = False  # film offsets drawn from a tabulated filter (kernels/film.py); False: box
     thin_lens: bool = False  # Mitsuba's thinlens camera (depth of field) instead of the pinhole
+    # emitters other than parallelograms (``lights``), each compiled in only where the scene has one (kernels/lights.py)
+    sphere_lights: bool = False
+    mesh_lights: bool = False
+    point_lights: bool = False
+    spot_lights: bool = False
+    directional_lights: bool = False
+    environment: bool = False  # Mitsuba's constant emitter
 
 
 @wp.struct
@@ -192,8 +200,140 @@ def make_render_kernel(features: Features):
     LIGHT_TRACING = features.light_tracing
     PIXEL_FILTER = features.pixel_filter
     THIN_LENS = features.thin_lens
+    SPHERE_LIGHTS = features.sphere_lights
+    MESH_LIGHTS = features.mesh_lights
+    POINT_LIGHTS = features.point_lights
+    SPOT_LIGHTS = features.spot_lights
+    DIRECTIONAL = features.directional_lights
+    ENVIRONMENT = features.environment
+    EMITTING_SURFACES = HAS_LIGHTS or SPHERE_LIGHTS or MESH_LIGHTS  # hits can see emission
+    OTHER_LIGHTS = SPHERE_LIGHTS or MESH_LIGHTS or POINT_LIGHTS or SPOT_LIGHTS or DIRECTIONAL or ENVIRONMENT
+    NEE = HAS_LIGHTS or OTHER_LIGHTS
 
     trace, occluded = make_tracers(features)
+
+    @wp.func
+    def visible(scene: SceneData, hit: Hit, ng: wp.vec3, y: wp.vec3, yn: wp.vec3, y_scale: float, w: wp.vec3,
+                far: bool) -> bool:
+        """Does the shadow ray from the shading point towards unit ``w`` reach ``y`` (a point on an emitter with
+        normal ``yn``, zero for a point light) unoccluded? ``far``: ``y`` is at infinity (a direction)."""
+        so = offset_origin(hit.p, ng, hit.scale, w)
+        if far:
+            return not occluded(scene, so, w, INF, hit.quad, -1, hit.sphere, hit.ng)
+        se = y
+        if wp.dot(yn, yn) > 0.0:
+            se = offset_origin(y, yn, y_scale, -w)
+        seg = se - so
+        seg_len = wp.length(seg)
+        if seg_len <= 0.0:
+            return False
+        return not occluded(scene, so, seg / seg_len, seg_len, hit.quad, -1, hit.sphere, hit.ng)
+
+    @wp.func
+    def other_lights(scene: SceneData, params: PassParams, hit: Hit, ng: wp.vec3, ns: wp.vec3, key: wp.vec3ui,
+                     dim: wp.uint32, depth: int) -> wp.vec3:
+        """Next-event estimation of every emitter but the parallelograms: the sum of Le cos_x / pdf over the samples
+        that see their emitter (K per sphere, mesh light and environment; one per point, spot and directional)."""
+        Ld = wp.vec3(0.0)
+        inv_k = 1.0 / float(params.light_samples)
+        if wp.static(SPHERE_LIGHTS):
+            for j in range(scene.num_sphere_lights):
+                i = scene.sl_sphere[j]
+                c = scene.sphere_center[i]
+                r = scene.sphere_radius[i]
+                for k in range(params.light_samples):
+                    u = wp.static(draw4)(key, dim, depth)
+                    dim += wp.uint32(1)
+                    es = sample_sphere_cone(hit.p, c, r, u[0], u[1])
+                    if es.inv_pdf <= 0.0:
+                        continue
+                    w = wp.normalize(es.p - hit.p)
+                    cos_x = wp.dot(ns, w)
+                    if cos_x <= 0.0 or wp.dot(ng, w) <= 0.0 or wp.dot(es.n, w) >= 0.0:
+                        continue
+                    if visible(scene, hit, ng, es.p, es.n, max_abs(es.p) + r, w, False):
+                        Ld += scene.light_radiance[scene.num_lights + j] * (cos_x * es.inv_pdf * inv_k)
+        if wp.static(MESH_LIGHTS):
+            for m in range(scene.num_mesh_lights):
+                start = scene.ml_start[m]
+                count = scene.ml_count[m]
+                for k in range(params.light_samples):
+                    u = wp.static(draw4)(key, dim, depth)
+                    dim += wp.uint32(1)
+                    slot = pick_in_cdf(scene.ml_cdf, start, count, u[0])
+                    lo = float(0.0)
+                    if slot > start:
+                        lo = scene.ml_cdf[slot - 1]
+                    u0 = wp.clamp((u[0] - lo) / wp.max(scene.ml_cdf[slot] - lo, 1.0e-30), 0.0, 0.99999994)
+                    f = scene.ml_face[slot]
+                    a = scene.points[scene.indices[3 * f + 0]]
+                    b = scene.points[scene.indices[3 * f + 1]]
+                    c = scene.points[scene.indices[3 * f + 2]]
+                    # barycentrics of the point sample_triangle_light draws, for the interpolated normal
+                    su = wp.sqrt(u0)
+                    n = (1.0 - su) * scene.corner_normals[3 * f + 0] + (su * (1.0 - u[1])) * scene.corner_normals[3 * f + 1]
+                    n = wp.normalize(n + (su * u[1]) * scene.corner_normals[3 * f + 2])
+                    # the area -> solid angle Jacobian is the face's own cosine; the emitting side is the shading
+                    # normal's, as for hits (Mitsuba takes the shading normal for both, which is not the Jacobian:
+                    # on smooth meshes its light samples disagree with its own emitter hits by about 1%)
+                    ngy = wp.normalize(wp.cross(b - a, c - a))
+                    es = sample_triangle_light(hit.p, a, b, c, ngy, scene.ml_area[m], u0, u[1])
+                    if es.inv_pdf <= 0.0:
+                        continue
+                    w = wp.normalize(es.p - hit.p)
+                    cos_x = wp.dot(ns, w)
+                    if cos_x <= 0.0 or wp.dot(ng, w) <= 0.0 or wp.dot(n, w) >= 0.0:
+                        continue
+                    if wp.dot(ngy, w) > 0.0:
+                        ngy = -ngy  # offset the far end towards the shading point
+                    y_scale = wp.max(max_abs(a), wp.max(max_abs(b), max_abs(c)))
+                    if visible(scene, hit, ng, es.p, -ngy, y_scale, w, False):
+                        Ld += scene.light_radiance[scene.num_lights + scene.num_sphere_lights + m] * (
+                            cos_x * es.inv_pdf * inv_k)
+        if wp.static(POINT_LIGHTS):
+            for j in range(scene.num_point_lights):
+                y = scene.pl_position[j]
+                to_y = y - hit.p
+                dist2 = wp.dot(to_y, to_y)
+                if dist2 <= 0.0:
+                    continue
+                w = to_y / wp.sqrt(dist2)
+                cos_x = wp.dot(ns, w)
+                if cos_x > 0.0 and wp.dot(ng, w) > 0.0:
+                    if visible(scene, hit, ng, y, wp.vec3(0.0), 0.0, w, False):
+                        Ld += scene.pl_intensity[j] * (cos_x / dist2)
+        if wp.static(SPOT_LIGHTS):
+            for j in range(scene.num_spot_lights):
+                y = scene.spot_position[j]
+                to_y = y - hit.p
+                dist2 = wp.dot(to_y, to_y)
+                if dist2 <= 0.0:
+                    continue
+                w = to_y / wp.sqrt(dist2)
+                cos_x = wp.dot(ns, w)
+                cone = scene.spot_cone[j]
+                falloff = spot_falloff(wp.normalize(scene.spot_to_local[j] * (-w))[2], cone[0], cone[1], cone[2],
+                                       cone[3])
+                if cos_x > 0.0 and wp.dot(ng, w) > 0.0 and falloff > 0.0:
+                    if visible(scene, hit, ng, y, wp.vec3(0.0), 0.0, w, False):
+                        Ld += scene.spot_intensity[j] * (falloff * cos_x / dist2)
+        if wp.static(DIRECTIONAL):
+            for j in range(scene.num_directional_lights):
+                w = -scene.dl_direction[j]
+                cos_x = wp.dot(ns, w)
+                if cos_x > 0.0 and wp.dot(ng, w) > 0.0:
+                    if visible(scene, hit, ng, hit.p, wp.vec3(0.0), 0.0, w, True):
+                        Ld += scene.dl_irradiance[j] * cos_x
+        if wp.static(ENVIRONMENT):
+            # cosine-weighted directions: Le cos_x / pdf = pi Le (the bounce that follows never counts the sky)
+            for k in range(params.light_samples):
+                u = wp.static(draw4)(key, dim, depth)
+                dim += wp.uint32(1)
+                w = sample_cosine_around(ns, u[0], u[1])
+                if wp.dot(ng, w) > 0.0:
+                    if visible(scene, hit, ng, hit.p, wp.vec3(0.0), 0.0, w, True):
+                        Ld += scene.env_radiance * (wp.pi * inv_k)
+        return Ld
 
     @wp.func
     def Li(scene: SceneData, cam: CameraData, params: PassParams, col: int, row: int, sample_index: wp.uint32,
@@ -238,7 +378,10 @@ def make_render_kernel(features: Features):
                     rays += wp.int64(1)
                 hit = trace(scene, o, d, tmax, origin_quad, origin_sphere, origin_normal)
                 if hit.material < 0:
-                    break  # the sky is black
+                    if wp.static(ENVIRONMENT):  # seen directly or through mirrors; after diffuse bounces by NEE
+                        if count_emission and (depth > 0 or params.hide_emitters == 0):
+                            L += wp.cw_mul(beta, scene.env_radiance)
+                    break  # without an environment the sky is black
 
                 if wp.static(VIEW == VIEW_NORMAL):
                     L = 0.5 * hit.ns + wp.vec3(0.5)
@@ -247,8 +390,10 @@ def make_render_kernel(features: Features):
                 front = wp.dot(d, hit.ng) < 0.0
 
                 # ---------------- emission seen directly or through mirrors ----------------
-                if wp.static(HAS_LIGHTS):
-                    if count_emission and hit.light >= 0 and front and not lt_owned:
+                if wp.static(EMITTING_SURFACES):
+                    # one-sided emitters, seen from the side of the shading normal (Mitsuba: cos_theta(wi) > 0 in the
+                    # shading frame; it is the face normal but on smooth meshes)
+                    if count_emission and hit.light >= 0 and wp.dot(d, hit.ns) < 0.0 and not lt_owned:
                         if depth > 0 or params.hide_emitters == 0:
                             L += wp.cw_mul(beta, scene.light_radiance[hit.light])
 
@@ -279,8 +424,8 @@ def make_render_kernel(features: Features):
                     count_emission = True
                 else:
                     # ---------------- diffuse: next-event estimation ----------------
+                    Ld = wp.vec3(0.0)
                     if wp.static(HAS_LIGHTS):
-                        Ld = wp.vec3(0.0)
                         o_scale = hit.scale
                         for l in range(scene.num_lights):
                             ln = scene.light_normal[l]
@@ -329,6 +474,12 @@ def make_render_kernel(features: Features):
                                     else:
                                         Ll += cos_x * cos_y / dist2 * scene.light_area[l]
                             Ld += scene.light_radiance[l] * (Ll / float(params.light_samples))
+                    if wp.static(OTHER_LIGHTS):
+                        Ld += other_lights(scene, params, hit, ng, ns, key, dim, depth)
+                        # the dims other_lights drew: K per sphere light, mesh light and environment
+                        dim += wp.uint32(params.light_samples * (scene.num_sphere_lights + scene.num_mesh_lights
+                                                                 + wp.static(int(ENVIRONMENT))))
+                    if wp.static(NEE):
                         L += wp.cw_mul(wp.cw_mul(beta, albedo), Ld) * (1.0 / wp.pi)
 
                     # ---------------- diffuse: cosine-weighted bounce ----------------

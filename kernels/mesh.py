@@ -94,7 +94,7 @@ def sphere_hit(scene: SceneData, o: wp.vec3, d: wp.vec3, t: float, i: int) -> Hi
     h.ns = n
     h.scale = max_abs(h.p)
     h.material = scene.sphere_material[i]
-    h.light = -1
+    h.light = scene.sphere_light[i]
     h.sphere = i
     h.quad = -1
     return h

@@ -68,6 +68,29 @@ class SceneData:
     num_lights: int
     light_quad: wp.array(dtype=wp.int32)  # the quad that is light l, -1 if it is triangles
     light_rect: wp.array(dtype=wp.int32)  # 1 if light l is a rectangle (solid-angle sampling applies), else 0
+    # other area lights (kernels/lights.py); light_radiance holds the parallelograms' num_lights entries, then one per
+    # sphere light, then one per mesh light: the index a hit's ``light`` names
+    sphere_light: wp.array(dtype=wp.int32)  # per sphere: its light index, -1 if it does not emit
+    sl_sphere: wp.array(dtype=wp.int32)  # sphere light j is sphere sl_sphere[j] (light index num_lights + j)
+    num_sphere_lights: int
+    ml_face: wp.array(dtype=wp.int32)  # the faces of every mesh light, light after light
+    ml_cdf: wp.array(dtype=float)  # per face: its light's area CDF up to and including it (1 at each light's last)
+    ml_start: wp.array(dtype=wp.int32)  # mesh light k's faces are ml_face[ml_start[k] : ml_start[k] + ml_count[k]]
+    ml_count: wp.array(dtype=wp.int32)
+    ml_area: wp.array(dtype=float)  # its total area (light index num_lights + num_sphere_lights + k)
+    num_mesh_lights: int
+    pl_position: wp.array(dtype=wp.vec3)  # point lights
+    pl_intensity: wp.array(dtype=wp.vec3)
+    num_point_lights: int
+    spot_position: wp.array(dtype=wp.vec3)  # spot lights
+    spot_to_local: wp.array(dtype=wp.mat33)  # world -> the light's frame (its axis is local +z)
+    spot_intensity: wp.array(dtype=wp.vec3)
+    spot_cone: wp.array(dtype=wp.vec4)  # cos(cutoff), cutoff, beam width (radians), cos(beam width)
+    num_spot_lights: int
+    dl_direction: wp.array(dtype=wp.vec3)  # directional lights: unit direction of travel
+    dl_irradiance: wp.array(dtype=wp.vec3)
+    num_directional_lights: int
+    env_radiance: wp.vec3  # the constant environment's radiance (when the scene has one)
 
 
 @wp.struct

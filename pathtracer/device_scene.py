@@ -230,7 +230,11 @@ class DeviceScene:
             points = np.concatenate([m.vertices for m in tri])
             faces = np.concatenate([m.faces + off for m, off in zip(tri, offsets)])
             face_material = np.concatenate([np.full(len(m.faces), m.material) for m in tri])
-            face_light = np.concatenate([np.full(len(m.faces), m.light) for m in tri])
+            # a rectangle or cube left as triangles names its parallelogram light; a mesh light comes after the
+            # parallelograms and the spheres
+            emits = {id(scene.meshes[l.mesh]): len(scene.lights) + len(scene.sphere_lights) + k
+                     for k, l in enumerate(scene.mesh_lights)}
+            face_light = np.concatenate([np.full(len(m.faces), emits.get(id(m), m.light)) for m in tri])
             corner = []
             for m in tri:
                 if m.normals is not None:
@@ -287,13 +291,66 @@ class DeviceScene:
         d.light_half_u = _vec3([l.half_u for l in lights], device)
         d.light_half_v = _vec3([l.half_v for l in lights], device)
         d.light_normal = _vec3([l.normal for l in lights], device)
-        d.light_radiance = _vec3([l.radiance for l in lights], device)
+        # parallelograms, then sphere lights, then mesh lights (the order the hits' light indices assume)
+        d.light_radiance = _vec3([l.radiance for l in lights] + [l.radiance for l in scene.sphere_lights]
+                                 + [l.radiance for l in scene.mesh_lights], device)
         d.light_area = _arr([l.area for l in lights], wp.float32, device)
         d.num_lights = len(lights)
         d.light_quad = _arr(light_quad, wp.int32, device)
         d.light_rect = _arr([int(is_rectangle(l.half_u, l.half_v)) for l in lights], wp.int32, device)
+        self._other_lights(d, scene, tri, device)
         self.data = d
         self.camera = camera_data(scene, device)
+
+    def _other_lights(self, d: SceneData, scene: Scene, tri: list[TriangleMesh], device):
+        """Sphere, mesh, point, spot and directional lights and the environment (kernels/lights.py)."""
+        n_rect = len(scene.lights)
+        sphere_light = np.full(len(scene.spheres), -1)
+        for j, l in enumerate(scene.sphere_lights):
+            sphere_light[l.sphere] = n_rect + j
+        d.sphere_light = _arr(sphere_light, wp.int32, device)
+        d.sl_sphere = _arr([l.sphere for l in scene.sphere_lights], wp.int32, device)
+        d.num_sphere_lights = len(scene.sphere_lights)
+
+        face_offset, off = {}, 0
+        for m in tri:
+            face_offset[id(m)] = off
+            off += len(m.faces)
+        faces, cdf, start, count, area = [], [], [], [], []
+        for l in scene.mesh_lights:
+            m = scene.meshes[l.mesh]
+            a = 0.5 * np.linalg.norm(np.cross(m.vertices[m.faces[:, 1]] - m.vertices[m.faces[:, 0]],
+                                              m.vertices[m.faces[:, 2]] - m.vertices[m.faces[:, 0]]), axis=1)
+            start.append(len(faces))
+            count.append(len(m.faces))
+            area.append(float(a.sum()))
+            c = np.cumsum(a) / a.sum()
+            c[-1] = 1.0
+            cdf.extend(c.tolist())
+            faces.extend((face_offset[id(m)] + np.arange(len(m.faces))).tolist())
+        d.ml_face = _arr(faces, wp.int32, device)
+        d.ml_cdf = _arr(cdf, wp.float32, device)
+        d.ml_start = _arr(start, wp.int32, device)
+        d.ml_count = _arr(count, wp.int32, device)
+        d.ml_area = _arr(area, wp.float32, device)
+        d.num_mesh_lights = len(scene.mesh_lights)
+
+        d.pl_position = _vec3([l.position for l in scene.point_lights], device)
+        d.pl_intensity = _vec3([l.intensity for l in scene.point_lights], device)
+        d.num_point_lights = len(scene.point_lights)
+        spots = scene.spot_lights
+        d.spot_position = _vec3([l.position for l in spots], device)
+        d.spot_to_local = wp.array(np.array([np.linalg.inv(l.to_world) for l in spots], dtype=np.float32).reshape(
+            -1, 3, 3), dtype=wp.mat33, device=device)
+        d.spot_intensity = _vec3([l.intensity for l in spots], device)
+        cone = [[np.cos(np.radians(l.cutoff_angle)), np.radians(l.cutoff_angle), np.radians(l.beam_width),
+                 np.cos(np.radians(l.beam_width))] for l in spots]
+        d.spot_cone = wp.array(np.array(cone, dtype=np.float32).reshape(-1, 4), dtype=wp.vec4, device=device)
+        d.num_spot_lights = len(spots)
+        d.dl_direction = _vec3([l.direction for l in scene.directional_lights], device)
+        d.dl_irradiance = _vec3([l.irradiance for l in scene.directional_lights], device)
+        d.num_directional_lights = len(scene.directional_lights)
+        d.env_radiance = wp.vec3(*(scene.environment or (0.0, 0.0, 0.0)))
 
     @staticmethod
     def features(scene: Scene, view: str = "radiance", rr: str = "throughput", sampler: str = "independent",
@@ -316,6 +373,12 @@ class DeviceScene:
             triangles=TRIANGLES[triangles],
             pixel_filter=not scene.rfilter.is_box,
             thin_lens=scene.camera.aperture_radius > 0,
+            sphere_lights=len(scene.sphere_lights) > 0,
+            mesh_lights=len(scene.mesh_lights) > 0,
+            point_lights=len(scene.point_lights) > 0,
+            spot_lights=len(scene.spot_lights) > 0,
+            directional_lights=len(scene.directional_lights) > 0,
+            environment=scene.environment is not None,
         )
 
 

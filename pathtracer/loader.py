@@ -34,7 +34,12 @@ shape       cube         to_world; [-1, 1]^3, Mitsuba's 24 vertices and 12 outwa
 shape       obj, ply     filename (relative to the scene file; for load_dict, to the working
                          directory), face_normals (false), flip_tex_coords (no-op: no textures),
                          to_world
-emitter     area         radiance (1.0, rgb or float >= 0), only inside a rectangle
+emitter     area         radiance (1.0, >= 0) on any shape, nested or referenced by id (one shape
+                         each; an area emitter no shape refers to emits nothing, as in Mitsuba)
+emitter     point        intensity (1.0), position or to_world (translation only)
+emitter     spot         intensity, cutoff_angle (20), beam_width (3/4 cutoff), to_world (local +z)
+emitter     directional  irradiance (1.0), direction or to_world (local +z)
+emitter     constant     radiance (1.0); one environment per scene
 =========== ============ ==========================================================================
 
 Every shape takes ``flip_normals`` = false only and at most one bsdf (inline or ``ref``); a shape
@@ -44,6 +49,9 @@ rectangles and cubes transform their normal as a normal (inverse transpose), so 
 ``to_world`` their triangles are rewound to keep the face normal on that side; a file mesh with
 vertex normals is rewound the same way; a mesh whose normals are recomputed (angle-weighted, in
 world space) or flat (``face_normals``) keeps its world-space winding, as in Mitsuba.
+
+Colours may also be ``<spectrum>`` values (pathtracer/spectra.py converts them as Mitsuba's RGB variants
+do); ``<include>`` and ``<path>`` follow Mitsuba's file resolver (pathtracer/loader_xml.py).
 
 XML follows Mitsuba 3.9's parser: ``<default>`` and ``$name`` substitution in document order
 (longest names first, a backslash escapes a dollar), a parameter passed but never used is an
@@ -65,12 +73,12 @@ from pathlib import Path
 
 import numpy as np
 
-from . import meshio
+from . import meshio, spectra
 from . import transform as tf
 from .errors import SceneError
-from .loader_xml import Point3, XmlDict, parse_file
-from .scene import (DEFAULT_MATERIAL, Camera, Integrator, Material, PixelFilter, RectLight, Scene, Sphere,
-                    TriangleMesh)
+from .loader_xml import Point3, XmlDict, parse_file, resolve_file
+from .scene import (DEFAULT_MATERIAL, Camera, DirectionalLight, Integrator, Material, MeshLight, PixelFilter,
+                    PointLight, RectLight, Scene, Sphere, SphereLight, SpotLight, TriangleMesh)
 
 FLOAT, INT, BOOL, STRING, POINT, COLOR, TRANSFORM = "float", "integer", "boolean", "string", "point", "rgb", "transform"
 UINT32_MAX = 2**32 - 1
@@ -105,14 +113,22 @@ PLUGINS = {
     "conductor": Plugin("bsdf", {"material": STRING, "specular_reflectance": COLOR}),
     "twosided": Plugin("bsdf", {}, ("bsdf",)),
     "sphere": Plugin("shape", {"center": POINT, "radius": FLOAT, "to_world": TRANSFORM, "flip_normals": BOOL},
-                     ("bsdf",)),
+                     ("bsdf", "emitter")),
     "rectangle": Plugin("shape", {"to_world": TRANSFORM, "flip_normals": BOOL}, ("bsdf", "emitter")),
-    "cube": Plugin("shape", {"to_world": TRANSFORM, "flip_normals": BOOL}, ("bsdf",)),
+    "cube": Plugin("shape", {"to_world": TRANSFORM, "flip_normals": BOOL}, ("bsdf", "emitter")),
     "obj": Plugin("shape", {"filename": STRING, "face_normals": BOOL, "flip_tex_coords": BOOL,
-                            "to_world": TRANSFORM, "flip_normals": BOOL}, ("bsdf",)),
+                            "to_world": TRANSFORM, "flip_normals": BOOL}, ("bsdf", "emitter")),
     "ply": Plugin("shape", {"filename": STRING, "face_normals": BOOL, "flip_tex_coords": BOOL,
-                            "to_world": TRANSFORM, "flip_normals": BOOL}, ("bsdf",)),
-    "area": Plugin("emitter", {"radiance": COLOR}),
+                            "to_world": TRANSFORM, "flip_normals": BOOL}, ("bsdf", "emitter")),
+    # sampling_weight only changes how often Mitsuba picks an emitter (noise, not the image): accepted
+    "area": Plugin("emitter", {"radiance": COLOR, "sampling_weight": FLOAT}),
+    "point": Plugin("emitter", {"intensity": COLOR, "position": POINT, "to_world": TRANSFORM,
+                                "sampling_weight": FLOAT}),
+    "spot": Plugin("emitter", {"intensity": COLOR, "cutoff_angle": FLOAT, "beam_width": FLOAT, "to_world": TRANSFORM,
+                               "sampling_weight": FLOAT}),
+    "directional": Plugin("emitter", {"irradiance": COLOR, "direction": POINT, "to_world": TRANSFORM,
+                                      "sampling_weight": FLOAT}),
+    "constant": Plugin("emitter", {"radiance": COLOR, "sampling_weight": FLOAT}),
 }
 
 # Mitsuba 3 plugins we do not support, by category: for dict scenes (where only the type names
@@ -139,6 +155,7 @@ HINTS = {
     "k": ' (only material="none", a perfect mirror, is supported)',
 }
 FOV_AXES = ("x", "y", "diagonal", "smaller", "larger")
+EMISSIVE = ("radiance", "intensity", "irradiance")  # the emitters' colours
 
 # Mitsuba's cube: 4 vertices per face (normals -y, +y, +x, +z, -x, -z), 2 triangles each.
 _CUBE_VERTICES = np.array([
@@ -159,7 +176,7 @@ def load_file(path: str | os.PathLike, **params) -> Scene:
     """
     with np.errstate(all="ignore"):  # overflow is reported as a SceneError where a value is checked
         d = parse_file(path, params)
-    return _Builder(str(path), Path(path).parent).build(d)
+    return _Builder(str(path), Path(path).parent, d.search_paths).build(d)
 
 
 def load_dict(d: Mapping, source: str = "<dict>") -> Scene:
@@ -244,12 +261,16 @@ class _Obj:
 
 
 class _Builder:
-    def __init__(self, source: str, base_dir: Path):
+    def __init__(self, source: str, base_dir: Path, search_paths: list | None = None):
         self.source = source
         self.base_dir = base_dir
+        # where mesh files are looked for: <path> folders, the scene's folder, the working directory (Mitsuba's
+        # file resolver; pathtracer.loader_xml.resolve_file)
+        self.search_paths = search_paths if search_paths is not None else [base_dir]
         self.ids: dict[str, tuple[Mapping, str]] = {}
         self.materials: dict[int, Material] = {}
         self.visiting: set[int] = set()
+        self.attached: set[int] = set()  # area emitters already attached to a shape
 
     def fail(self, where: str, problem: str):
         raise SceneError(self.source, " ".join(where.split()), " ".join(problem.split()))
@@ -323,9 +344,6 @@ class _Builder:
                                               f'(supported: {_supported(spec)}){HINTS.get(k, "")}')
         for o in objs:
             if o.category not in spec.nested:
-                if o.category == "emitter" and spec.category == "shape":
-                    self.fail(_where(o.node, o.path), f'area emitters are supported only on rectangle shapes '
-                                                      f'(not on a {node["type"]})')
                 what = f'a {o.category}' if o.category else f'unknown plugin type "{o.node["type"]}"'
                 self.fail(_where(o.node, o.path), f'{what} cannot appear inside {_where(node, path)} '
                                                   f'(supported there: {_supported(spec)})')
@@ -387,6 +405,13 @@ class _Builder:
     def colour(self, v, where: str, key: str) -> tuple[float, float, float]:
         if isinstance(v, Point3):
             self.fail(where, f"{key} must be an <rgb> or a <float>, not a point or vector")
+        if _is_plugin(v) and v["type"] == "spectrum":
+            # converted as Mitsuba's RGB variants do; an emitter's radiance, intensity or irradiance is not a
+            # reflectance (no D65 weighting, no [0, 1] bound)
+            try:
+                return spectra.spectrum_to_rgb(v, emitter=key in EMISSIVE)
+            except ValueError as e:
+                self.fail(where, f"{key}: {e}")
         if _is_plugin(v):
             if v["type"] != "rgb":
                 self.fail(where, f'{key}: "{v["type"]}" is not supported (give an rgb value or a float)')
@@ -435,7 +460,7 @@ class _Builder:
                 named = not isinstance(d, XmlDict) or "id" in v
                 self.register(v, f"[{k!r}]", k if named and isinstance(k, str) else None)
 
-        integrators, sensors, shapes = [], [], []
+        integrators, sensors, shapes, emitters = [], [], [], []
         for k, v in d.items():
             if k == "type":
                 continue
@@ -448,10 +473,10 @@ class _Builder:
             if cat in ("film", "sampler", "rfilter"):
                 parent = "film" if cat == "rfilter" else "sensor"
                 self.fail(_where(v, path), f"a {cat} must be nested in the {parent}")
+            self.spec(v, path, ("integrator", "sensor", "shape", "bsdf", "emitter"))
             if cat == "emitter":
-                self.fail(_where(v, path), "emitters are supported only as an area emitter inside a rectangle shape")
-            self.spec(v, path, ("integrator", "sensor", "shape", "bsdf"))
-            if cat == "integrator":
+                emitters.append((v, path))
+            elif cat == "integrator":
                 integrators.append((v, path))
             elif cat == "sensor":
                 sensors.append((v, path))
@@ -472,7 +497,66 @@ class _Builder:
             scene.integrator = self.integrator(*integrators[0])
         for node, path, key in shapes:
             self.shape(node, path, key, scene)
+        for node, path in emitters:
+            self.scene_emitter(node, path, scene)
         return scene
+
+    def emitter_colour(self, node: Mapping, path: str, props: dict, key: str) -> tuple:
+        c = self.value(node, path, props, key, COLOR, (1.0, 1.0, 1.0))
+        if not all(x >= 0.0 for x in c):
+            self.fail(_prop_where(node, path, key), f"{key} must be >= 0 (got {list(c)})")
+        return c
+
+    def scene_emitter(self, node: Mapping, path: str, scene: Scene):
+        """An emitter at scene level: point, spot, directional or constant (an area emitter there belongs to the
+        shape that refers to it; one that no shape refers to emits nothing, as in Mitsuba)."""
+        spec = self.spec(node, path, ("emitter",))
+        props, _ = self.fields(node, path, spec)
+        t = node["type"]
+        w = lambda k: _prop_where(node, path, k)  # noqa: E731
+        if "sampling_weight" in props:
+            sw = self.value(node, path, props, "sampling_weight", FLOAT)
+            self.in_range(w("sampling_weight"), "sampling_weight", sw, sw >= 0, ">= 0")
+        if t == "area":
+            return  # attached where a shape refers to it, or (as in Mitsuba) dropped
+        if t == "constant":
+            if scene.environment is not None:
+                self.fail(_where(node, path), "only one environment emitter (constant) is allowed per scene")
+            scene.environment = self.emitter_colour(node, path, props, "radiance")
+            return
+        m = self.value(node, path, props, "to_world", TRANSFORM, None)
+        if t == "point":
+            pos = self.value(node, path, props, "position", POINT, None)
+            if pos is not None and m is not None:
+                self.fail(w("position"), 'give "position" or "to_world", not both')
+            position = pos if pos is not None else (m[:3, 3].copy() if m is not None else np.zeros(3))
+            scene.point_lights.append(PointLight(position=position,
+                                                 intensity=self.emitter_colour(node, path, props, "intensity")))
+        elif t == "spot":
+            m = np.eye(4) if m is None else m
+            lin = m[:3, :3]
+            if np.max(np.abs(lin.T @ lin - np.eye(3))) > 1e-3:
+                self.fail(w("to_world"), "a spot light's to_world may only rotate and translate")
+            cutoff = self.value(node, path, props, "cutoff_angle", FLOAT, 20.0)
+            self.in_range(w("cutoff_angle"), "cutoff_angle", cutoff, 0.0 < cutoff <= 90.0, "in (0, 90] degrees")
+            beam = self.value(node, path, props, "beam_width", FLOAT, 0.75 * cutoff)
+            self.in_range(w("beam_width"), "beam_width", beam, 0.0 <= beam < cutoff,
+                          f"in [0, cutoff_angle = {cutoff}) degrees")
+            scene.spot_lights.append(SpotLight(position=m[:3, 3].copy(), to_world=lin.copy(),
+                                               intensity=self.emitter_colour(node, path, props, "intensity"),
+                                               cutoff_angle=cutoff, beam_width=beam))
+        else:  # directional
+            direction = self.value(node, path, props, "direction", POINT, None)
+            if direction is not None and m is not None:
+                self.fail(w("direction"), 'give "direction" or "to_world", not both')
+            if direction is None:
+                direction = (np.eye(4) if m is None else m)[:3, :3] @ np.array([0.0, 0.0, 1.0])
+            norm = float(np.linalg.norm(direction))
+            if not norm > 0:
+                self.fail(w("direction" if "direction" in props else "to_world"), "the direction must not be zero")
+            scene.directional_lights.append(DirectionalLight(
+                direction=np.asarray(direction, dtype=np.float64) / norm,
+                irradiance=self.emitter_colour(node, path, props, "irradiance")))
 
     def integrator(self, node: Mapping, path: str) -> Integrator:
         spec = self.spec(node, path, ("integrator",))
@@ -659,11 +743,15 @@ class _Builder:
         radiance = None
         if emitter is not None:
             e_spec = self.spec(emitter.node, emitter.path, ("emitter",))
+            if emitter.node["type"] != "area":
+                self.fail(_where(emitter.node, emitter.path), f'a shape can only hold an area emitter (a '
+                                                              f'{emitter.node["type"]} emitter goes at scene level)')
+            if id(emitter.node) in self.attached:
+                self.fail(_where(emitter.node, emitter.path), "an area emitter can be attached to one shape only "
+                                                              "(as in Mitsuba)")
+            self.attached.add(id(emitter.node))
             e_props, _ = self.fields(emitter.node, emitter.path, e_spec)
-            radiance = self.value(emitter.node, emitter.path, e_props, "radiance", COLOR, (1.0, 1.0, 1.0))
-            if not all(c >= 0.0 for c in radiance):
-                self.fail(_prop_where(emitter.node, emitter.path, "radiance"),
-                          f"radiance must be >= 0 (got {list(radiance)})")
+            radiance = self.emitter_colour(emitter.node, emitter.path, e_props, "radiance")
         if bsdf is not None:
             material = self.material(bsdf.node, bsdf.path)
         elif emitter is not None:
@@ -692,6 +780,8 @@ class _Builder:
             if not (np.all(np.isfinite(sphere.center)) and np.isfinite(sphere.radius)):
                 self.fail(where, "the sphere's centre or radius overflows (not finite)")
             scene.spheres.append(sphere)
+            if radiance is not None:
+                scene.sphere_lights.append(SphereLight(sphere=len(scene.spheres) - 1, radiance=radiance))
             return
 
         if not _check_invertible(lin):
@@ -707,9 +797,13 @@ class _Builder:
             vertices, faces, normals = self.mesh_file(node, path, props, m, flip)
         if not np.all(np.isfinite(vertices)) or (normals is not None and not np.all(np.isfinite(normals))):
             self.fail(where, "to_world makes vertex positions or normals overflow (not finite)")
+        # an emitting cube stays triangles: a mesh light (its faces are not one parallelogram light each)
+        kind = t if t == "rectangle" or (t == "cube" and radiance is None) else "mesh"
         mesh = TriangleMesh(vertices=vertices, faces=faces.astype(np.int64), normals=normals,
-                            material=mat_index, name=name, shape=t if t in ("rectangle", "cube") else "mesh")
-        if radiance is not None:
+                            material=mat_index, name=name, shape=kind)
+        if radiance is not None and t != "rectangle":
+            scene.mesh_lights.append(MeshLight(mesh=len(scene.meshes), radiance=radiance))
+        elif radiance is not None:
             normal = tf.normal_matrix(m) @ np.array([0.0, 0.0, 1.0])
             scene.lights.append(RectLight(center=m[:3, 3].copy(), half_u=lin[:, 0].copy(), half_v=lin[:, 1].copy(),
                                           normal=normal / np.linalg.norm(normal), radiance=radiance))
@@ -723,9 +817,7 @@ class _Builder:
             self.fail(where, f'{node["type"]} needs "filename"')
         face_normals = self.value(node, path, props, "face_normals", BOOL, False)
         self.value(node, path, props, "flip_tex_coords", BOOL, True)  # checked; no textures, so no effect
-        file = Path(filename)
-        if not file.is_absolute():
-            file = self.base_dir / file
+        file = resolve_file(filename, self.search_paths)
         try:
             parts = meshio.read_mesh(file, node["type"])
         except meshio.MeshFileError as e:

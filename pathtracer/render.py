@@ -242,12 +242,11 @@ class Renderer:
 
         self.features = DeviceScene.features(self.scene, self.view, self.rr, self.sampler, self.count_rays,
                                              self.light_sampling, self.triangles)
-        # the light tracer splats each light path into the one pixel it lands in (a box filter's film) through a
-        # pinhole
-        possible = not (self.features.pixel_filter or self.features.thin_lens) and self.features.mirrors and \
-            self.features.lights and \
-            self.view == "radiance" and (
-            self.max_depth < 0 or self.max_depth >= 3)
+        # the light tracer starts on parallelogram lights only and splats each light path into the one pixel it
+        # lands in (a box filter's film) through a pinhole
+        possible = (not (self.features.pixel_filter or self.features.thin_lens) and self.scene.only_rect_lights
+                    and self.features.mirrors and self.features.lights and self.view == "radiance"
+                    and (self.max_depth < 0 or self.max_depth >= 3))
         wanted = DEFAULT_LIGHT_TRACING if self.light_tracing is None else bool(self.light_tracing)
         self.light_tracing_possible = possible
         self.light_tracing = wanted and possible

@@ -151,6 +151,50 @@ class RectLight:
 
 
 @dataclass
+class SphereLight:
+    """Mitsuba's ``area`` emitter on ``Scene.spheres[sphere]``: ``radiance`` outwards (one-sided, as Mitsuba)."""
+
+    sphere: int
+    radiance: tuple[float, float, float]
+
+
+@dataclass
+class MeshLight:
+    """Mitsuba's ``area`` emitter on the triangle mesh ``Scene.meshes[mesh]``, to the side its normals face."""
+
+    mesh: int
+    radiance: tuple[float, float, float]
+
+
+@dataclass
+class PointLight:
+    """Mitsuba's ``point``: ``intensity`` (W/sr) from ``position``; a surface at distance d receives I / d^2."""
+
+    position: np.ndarray
+    intensity: tuple[float, float, float]
+
+
+@dataclass
+class SpotLight:
+    """Mitsuba's ``spot``: a point light along local +z of ``to_world`` (3x3 rotation) whose intensity falls off
+    linearly in angle from ``beam_width`` to 0 at ``cutoff_angle`` (degrees)."""
+
+    position: np.ndarray
+    to_world: np.ndarray
+    intensity: tuple[float, float, float]
+    cutoff_angle: float = 20.0
+    beam_width: float = 15.0
+
+
+@dataclass
+class DirectionalLight:
+    """Mitsuba's ``directional``: ``irradiance`` (W/m^2 across the beam) travelling along unit ``direction``."""
+
+    direction: np.ndarray
+    irradiance: tuple[float, float, float]
+
+
+@dataclass
 class Integrator:
     """Mitsuba's ``path`` integrator parameters.
 
@@ -175,6 +219,12 @@ class Scene:
     spheres: list[Sphere] = field(default_factory=list)
     meshes: list[TriangleMesh] = field(default_factory=list)
     lights: list[RectLight] = field(default_factory=list)
+    sphere_lights: list[SphereLight] = field(default_factory=list)
+    mesh_lights: list[MeshLight] = field(default_factory=list)
+    point_lights: list[PointLight] = field(default_factory=list)
+    spot_lights: list[SpotLight] = field(default_factory=list)
+    directional_lights: list[DirectionalLight] = field(default_factory=list)
+    environment: tuple[float, float, float] | None = None  # Mitsuba's ``constant`` emitter: radiance from every direction
     source: str = "<scene>"
     rfilter: PixelFilter = field(default_factory=PixelFilter)  # the loader gives Mitsuba's default, gaussian
     sample_border: bool = False  # Mitsuba's film option: sample ceil(radius - 0.5) pixels beyond the film's edges
@@ -186,6 +236,12 @@ class Scene:
                 return i
         self.materials.append(material)
         return len(self.materials) - 1
+
+    @property
+    def only_rect_lights(self) -> bool:
+        """Are the parallelogram lights (``lights``) the only emitters?"""
+        return not (self.sphere_lights or self.mesh_lights or self.point_lights or self.spot_lights
+                    or self.directional_lights or self.environment is not None)
 
     @property
     def triangle_count(self) -> int:

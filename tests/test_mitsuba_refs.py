@@ -79,7 +79,11 @@ def test_agrees_with_mitsuba_reference(device, name, light_tracing, triangles):
     diff = ours - ref
     noisy = var_sum > 0
     # noiseless pixels (the black sky, pixels that see only the light) must agree exactly in value
-    assert np.all(np.abs(diff[~noisy]) <= 1e-5 * (1 + np.abs(ref[~noisy]))), name
+    # (Mitsuba sums each batch's META["spp"] / B samples in float32: the reference's own rounding there is bounded
+    # by n 2^-24 relative, n the samples summed, which is 2.4e-4 for 4096; a constant sky of 0.8 comes back 0.80003)
+    n_summed = META["spp"] // META["batches"]
+    tol = 1e-5 * (1 + np.abs(ref[~noisy])) + n_summed * 2.0**-24 * np.abs(ref[~noisy])
+    assert np.all(np.abs(diff[~noisy]) <= tol), name
     t = diff[noisy] / np.sqrt(var_sum[noisy])
     pass_rate = float(np.mean(np.abs(t) <= T_MAX))
     heavy_tailed = scene.has_mirror and (depth == -1 or depth > 2)  # light tracing or not: the reference's are
