@@ -11,6 +11,7 @@ import warp as wp
 
 from kernels.camera import camera_ray
 from kernels.film import filter_offset
+from kernels.lights import pick_in_cdf, sample_sphere_cone, sample_triangle_light, spot_falloff
 from kernels.light_tracer import camera_importance
 from kernels.integrator import light_sample_scale, self_mode
 from kernels.mesh import mesh_hit, smooth_normal, sphere_hit
@@ -334,3 +335,21 @@ def launch(kernel, n: int, device: str, inputs: list, outputs: list):
     wp.synchronize_device(device)
     res = [o.numpy().copy() for o in outs]
     return res[0] if len(res) == 1 else res
+
+
+@wp.kernel(enable_backward=False)
+def probe_lights(x: wp.vec3, c: wp.vec3, r: float, us: wp.array(dtype=wp.vec2), cos_t: wp.array(dtype=float),
+                 cone_p: wp.array(dtype=wp.vec3), cone_n: wp.array(dtype=wp.vec3), cone_inv: wp.array(dtype=float),
+                 falloff: wp.array(dtype=float), tri_p: wp.array(dtype=wp.vec3), cdf: wp.array(dtype=float),
+                 picked: wp.array(dtype=int)):
+    i = wp.tid()
+    es = sample_sphere_cone(x, c, r, us[i][0], us[i][1])
+    cone_p[i] = es.p
+    cone_n[i] = es.n
+    cone_inv[i] = es.inv_pdf
+    falloff[i] = spot_falloff(cos_t[i], wp.cos(wp.radians(20.0)), wp.radians(20.0), wp.radians(15.0),
+                              wp.cos(wp.radians(15.0)))
+    t = sample_triangle_light(x, wp.vec3(0.0), wp.vec3(1.0, 0.0, 0.0), wp.vec3(0.0, 1.0, 0.0), wp.vec3(0.0, 0.0, 1.0),
+                              0.5, us[i][0], us[i][1])
+    tri_p[i] = t.p
+    picked[i] = pick_in_cdf(cdf, 1, 3, us[i][0])
