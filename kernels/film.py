@@ -8,6 +8,8 @@ film, then through the inverse CDF. The same u gives the same stratum of the fil
 
 import warp as wp
 
+from kernels.sampling import pick_in_cdf
+
 
 @wp.func
 def filter_cdf_at(cdf: wp.array(dtype=float), radius: float, x: float) -> float:
@@ -27,14 +29,7 @@ def filter_cdf_at(cdf: wp.array(dtype=float), radius: float, x: float) -> float:
 def filter_cdf_inverse(cdf: wp.array(dtype=float), radius: float, u: float) -> float:
     """The offset x with C(x) = u, for u in [0, 1]: binary search for the bin, linear inside it."""
     n = cdf.shape[0] - 1
-    lo = int(0)
-    hi = n
-    while hi - lo > 1:
-        mid = (lo + hi) // 2
-        if cdf[mid] <= u:
-            lo = mid
-        else:
-            hi = mid
+    lo = pick_in_cdf(cdf, 1, n, u) - 1  # the bin: the last table point at or below u
     mass = cdf[lo + 1] - cdf[lo]
     t = float(0.5)
     if mass > 0.0:

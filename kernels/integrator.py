@@ -25,14 +25,14 @@ import warp as wp
 
 from kernels.camera import camera_ray, thin_lens_ray
 from kernels.film import filter_offset
-from kernels.lights import pick_in_cdf, sample_sphere_cone, sample_triangle_light, spot_falloff
+from kernels.lights import sample_sphere_cone, sample_triangle_light, spot_falloff
 from kernels.mesh import mesh_hit, smooth_normal, sphere_hit
 from kernels.triangle import mesh_closest, mesh_occluded
 from kernels.triangle_warp import warp_mesh_closest, warp_mesh_occluded
 from kernels.offset import max_abs, offset_origin
 from kernels.quad import nearest_quad, occluded_quads, quad_hit
 from kernels.sobol import independent4, padded_sobol4, replicate_seed
-from kernels.sampling import reflect, sample_cosine_around, sample_parallelogram
+from kernels.sampling import pick_in_cdf, reflect, sample_cosine_around, sample_parallelogram
 from kernels.sphrect import sample_spherical_rectangle
 from kernels.sphere import SELF_FAR, SELF_NONE, SELF_SKIP, ray_sphere
 from kernels.types import CameraData, Hit, PassParams, SceneData
@@ -214,9 +214,10 @@ def make_render_kernel(features: Features):
 
     @wp.func
     def visible(scene: SceneData, hit: Hit, ng: wp.vec3, y: wp.vec3, yn: wp.vec3, y_scale: float, w: wp.vec3,
-                far: bool) -> bool:
+                light_quad: int, far: bool) -> bool:
         """Does the shadow ray from the shading point towards unit ``w`` reach ``y`` (a point on an emitter with
-        normal ``yn``, zero for a point light) unoccluded? ``far``: ``y`` is at infinity (a direction)."""
+        normal ``yn``, zero for a point light; on quad ``light_quad``, -1 if none) unoccluded? The segment runs
+        between the two offset end points, stopping short of the emitter. ``far``: ``y`` is at infinity."""
         so = offset_origin(hit.p, ng, hit.scale, w)
         if far:
             return not occluded(scene, so, w, INF, hit.quad, -1, hit.sphere, hit.ng)
@@ -227,7 +228,19 @@ def make_render_kernel(features: Features):
         seg_len = wp.length(seg)
         if seg_len <= 0.0:
             return False
-        return not occluded(scene, so, seg / seg_len, seg_len, hit.quad, -1, hit.sphere, hit.ng)
+        return not occluded(scene, so, seg / seg_len, seg_len, hit.quad, light_quad, hit.sphere, hit.ng)
+
+    @wp.func
+    def lit(scene: SceneData, hit: Hit, ng: wp.vec3, ns: wp.vec3, y: wp.vec3, yn: wp.vec3, y_scale: float,
+            w: wp.vec3, far: bool) -> float:
+        """cos_x for light reaching the shading point along unit ``w`` from ``y`` (as ``visible``): 0 when it
+        arrives from behind the shading or the geometric normal, or is occluded."""
+        cos_x = wp.dot(ns, w)
+        if cos_x <= 0.0 or wp.dot(ng, w) <= 0.0:
+            return 0.0
+        if not visible(scene, hit, ng, y, yn, y_scale, w, -1, far):
+            return 0.0
+        return cos_x
 
     @wp.func
     def other_lights(scene: SceneData, params: PassParams, hit: Hit, ng: wp.vec3, ns: wp.vec3, key: wp.vec3ui,
@@ -248,10 +261,8 @@ def make_render_kernel(features: Features):
                     if es.inv_pdf <= 0.0:
                         continue
                     w = wp.normalize(es.p - hit.p)
-                    cos_x = wp.dot(ns, w)
-                    if cos_x <= 0.0 or wp.dot(ng, w) <= 0.0 or wp.dot(es.n, w) >= 0.0:
-                        continue
-                    if visible(scene, hit, ng, es.p, es.n, max_abs(es.p) + r, w, False):
+                    if wp.dot(es.n, w) < 0.0:  # the emitting (outer) side faces the shading point
+                        cos_x = lit(scene, hit, ng, ns, es.p, es.n, max_abs(es.p) + r, w, False)
                         Ld += scene.light_radiance[scene.num_lights + j] * (cos_x * es.inv_pdf * inv_k)
         if wp.static(MESH_LIGHTS):
             for m in range(scene.num_mesh_lights):
@@ -281,13 +292,11 @@ def make_render_kernel(features: Features):
                     if es.inv_pdf <= 0.0:
                         continue
                     w = wp.normalize(es.p - hit.p)
-                    cos_x = wp.dot(ns, w)
-                    if cos_x <= 0.0 or wp.dot(ng, w) <= 0.0 or wp.dot(n, w) >= 0.0:
-                        continue
-                    if wp.dot(ngy, w) > 0.0:
-                        ngy = -ngy  # offset the far end towards the shading point
-                    y_scale = wp.max(max_abs(a), wp.max(max_abs(b), max_abs(c)))
-                    if visible(scene, hit, ng, es.p, -ngy, y_scale, w, False):
+                    if wp.dot(n, w) < 0.0:  # the emitting side (the shading normal's) faces the shading point
+                        if wp.dot(ngy, w) > 0.0:
+                            ngy = -ngy  # offset the far end towards the shading point
+                        y_scale = wp.max(max_abs(a), wp.max(max_abs(b), max_abs(c)))
+                        cos_x = lit(scene, hit, ng, ns, es.p, -ngy, y_scale, w, False)
                         Ld += scene.light_radiance[scene.num_lights + scene.num_sphere_lights + m] * (
                             cos_x * es.inv_pdf * inv_k)
         if wp.static(POINT_LIGHTS):
@@ -298,10 +307,7 @@ def make_render_kernel(features: Features):
                 if dist2 <= 0.0:
                     continue
                 w = to_y / wp.sqrt(dist2)
-                cos_x = wp.dot(ns, w)
-                if cos_x > 0.0 and wp.dot(ng, w) > 0.0:
-                    if visible(scene, hit, ng, y, wp.vec3(0.0), 0.0, w, False):
-                        Ld += scene.pl_intensity[j] * (cos_x / dist2)
+                Ld += scene.pl_intensity[j] * (lit(scene, hit, ng, ns, y, wp.vec3(0.0), 0.0, w, False) / dist2)
         if wp.static(SPOT_LIGHTS):
             for j in range(scene.num_spot_lights):
                 y = scene.spot_position[j]
@@ -310,29 +316,24 @@ def make_render_kernel(features: Features):
                 if dist2 <= 0.0:
                     continue
                 w = to_y / wp.sqrt(dist2)
-                cos_x = wp.dot(ns, w)
                 cone = scene.spot_cone[j]
                 falloff = spot_falloff(wp.normalize(scene.spot_to_local[j] * (-w))[2], cone[0], cone[1], cone[2],
                                        cone[3])
-                if cos_x > 0.0 and wp.dot(ng, w) > 0.0 and falloff > 0.0:
-                    if visible(scene, hit, ng, y, wp.vec3(0.0), 0.0, w, False):
-                        Ld += scene.spot_intensity[j] * (falloff * cos_x / dist2)
+                if falloff > 0.0:  # no shadow ray outside the cone
+                    cos_x = lit(scene, hit, ng, ns, y, wp.vec3(0.0), 0.0, w, False)
+                    Ld += scene.spot_intensity[j] * (falloff * cos_x / dist2)
         if wp.static(DIRECTIONAL):
             for j in range(scene.num_directional_lights):
                 w = -scene.dl_direction[j]
-                cos_x = wp.dot(ns, w)
-                if cos_x > 0.0 and wp.dot(ng, w) > 0.0:
-                    if visible(scene, hit, ng, hit.p, wp.vec3(0.0), 0.0, w, True):
-                        Ld += scene.dl_irradiance[j] * cos_x
+                Ld += scene.dl_irradiance[j] * lit(scene, hit, ng, ns, hit.p, wp.vec3(0.0), 0.0, w, True)
         if wp.static(ENVIRONMENT):
             # cosine-weighted directions: Le cos_x / pdf = pi Le (the bounce that follows never counts the sky)
             for k in range(params.light_samples):
                 u = wp.static(draw4)(key, dim, depth)
                 dim += wp.uint32(1)
                 w = sample_cosine_around(ns, u[0], u[1])
-                if wp.dot(ng, w) > 0.0:
-                    if visible(scene, hit, ng, hit.p, wp.vec3(0.0), 0.0, w, True):
-                        Ld += scene.env_radiance * (wp.pi * inv_k)
+                if lit(scene, hit, ng, ns, hit.p, wp.vec3(0.0), 0.0, w, True) > 0.0:
+                    Ld += scene.env_radiance * (wp.pi * inv_k)
         return Ld
 
     @wp.func
@@ -426,7 +427,6 @@ def make_render_kernel(features: Features):
                     # ---------------- diffuse: next-event estimation ----------------
                     Ld = wp.vec3(0.0)
                     if wp.static(HAS_LIGHTS):
-                        o_scale = hit.scale
                         for l in range(scene.num_lights):
                             ln = scene.light_normal[l]
                             l_scale = light_sample_scale(scene, l)
@@ -455,20 +455,12 @@ def make_render_kernel(features: Features):
                                 cos_y = -wp.dot(ln, w)
                                 if cos_x <= 0.0 or cos_y <= 0.0 or wp.dot(ng, w) <= 0.0:
                                     continue
-                                # shadow ray between the two offset end points, stopping short of the light
-                                so = offset_origin(hit.p, ng, o_scale, w)
-                                se = offset_origin(y, ln, l_scale, -w)
-                                seg = se - so
-                                seg_len = wp.length(seg)
-                                if seg_len <= 0.0:
-                                    continue
-                                sd = seg / seg_len
                                 if wp.static(COUNT_RAYS):
                                     rays += wp.int64(1)
                                 light_quad = int(-1)
                                 if wp.static(HAS_QUADS):
                                     light_quad = scene.light_quad[l]
-                                if not occluded(scene, so, sd, seg_len, hit.quad, light_quad, hit.sphere, hit.ng):
+                                if visible(scene, hit, ng, y, ln, l_scale, w, light_quad, False):
                                     if omega > 0.0:
                                         Ll += cos_x * omega
                                     else:

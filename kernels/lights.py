@@ -69,21 +69,6 @@ def sample_triangle_light(x: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3, n: wp.
 
 
 @wp.func
-def pick_in_cdf(cdf: wp.array(dtype=float), start: int, count: int, u: float) -> int:
-    """The index i in [start, start + count) with cdf[i - 1] <= u < cdf[i] (cdf[start - 1] taken as 0), by binary
-    search: the triangle of a mesh light, in proportion to its area."""
-    lo = start
-    hi = start + count - 1
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if u < cdf[mid]:
-            hi = mid
-        else:
-            lo = mid + 1
-    return lo
-
-
-@wp.func
 def spot_falloff(cos_theta: float, cos_cutoff: float, cutoff: float, beam: float, cos_beam: float) -> float:
     """Mitsuba's spot profile: 1 inside the beam, linear in the angle down to 0 at the cutoff (exactly 0 there)."""
     if cos_theta <= cos_cutoff:

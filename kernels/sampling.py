@@ -56,3 +56,19 @@ def square_to_disk_concentric(u1: float, u2: float) -> wp.vec2:
         r = x
         phi = 0.25 * wp.pi * (y / x)
     return wp.vec2(r * wp.cos(phi), r * wp.sin(phi))
+
+
+@wp.func
+def pick_in_cdf(cdf: wp.array(dtype=float), start: int, count: int, u: float) -> int:
+    """The index i in [start, start + count) with cdf[i - 1] <= u < cdf[i] (cdf[start - 1] taken as 0; the last
+    index when u >= every entry), by binary search: the entry drawn in proportion to its mass (a mesh light's
+    triangle, a filter table's bin)."""
+    lo = start
+    hi = start + count - 1
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if u < cdf[mid]:
+            hi = mid
+        else:
+            lo = mid + 1
+    return lo

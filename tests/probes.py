@@ -11,7 +11,7 @@ import warp as wp
 
 from kernels.camera import camera_ray
 from kernels.film import filter_offset
-from kernels.lights import pick_in_cdf, sample_sphere_cone, sample_triangle_light, spot_falloff
+from kernels.lights import sample_sphere_cone, sample_triangle_light, spot_falloff
 from kernels.light_tracer import camera_importance
 from kernels.integrator import light_sample_scale, self_mode
 from kernels.mesh import mesh_hit, smooth_normal, sphere_hit
@@ -20,7 +20,8 @@ from kernels.triangle_warp import any_mesh_closest as mesh_closest, any_mesh_occ
 from kernels.offset import offset_origin
 from kernels.quad import nearest_quad, quad_hit, ray_box, ray_quad
 from kernels.rng import rand4
-from kernels.sampling import cosine_hemisphere, orthonormal_basis, reflect, sample_cosine_around, sample_parallelogram
+from kernels.sampling import (cosine_hemisphere, orthonormal_basis, pick_in_cdf, reflect, sample_cosine_around,
+                              sample_parallelogram)
 from kernels.sphere import SELF_NONE, ray_sphere
 from kernels.types import CameraData, SceneData
 
