@@ -24,8 +24,10 @@ from dataclasses import dataclass
 import warp as wp
 
 from kernels.camera import camera_ray, thin_lens_ray
+from kernels.envmap import env_eval, env_pdf, env_sample
 from kernels.film import filter_offset
-from kernels.lights import sample_sphere_cone, sample_triangle_light, spot_falloff
+from kernels.lights import sample_sphere_cone, sample_triangle_light, sphere_cone_pdf, spot_falloff
+from kernels.materials import MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_DIFFUSE, MAT_THIN_DIELECTRIC, make_materials
 from kernels.mesh import mesh_hit, smooth_normal, sphere_hit
 from kernels.triangle import mesh_closest, mesh_occluded
 from kernels.triangle_warp import warp_mesh_closest, warp_mesh_occluded
@@ -90,6 +92,18 @@ class Features:
     spot_lights: bool = False
     directional_lights: bool = False
     environment: bool = False  # Mitsuba's constant emitter
+    envmap: bool = False  # Mitsuba's envmap (kernels/envmap.py)
+    # BSDFs other than diffuse and mirror (kernels/materials.py), each compiled in only where the scene has one
+    dielectrics: bool = False
+    thin_dielectrics: bool = False
+    conductors: bool = False
+    plastics: bool = False
+    rough_conductors: bool = False
+
+    @property
+    def other_materials(self) -> bool:
+        """Any BSDF but diffuse and mirror?"""
+        return self.dielectrics or self.thin_dielectrics or self.conductors or self.plastics or self.rough_conductors
 
 
 @wp.struct
@@ -206,11 +220,68 @@ def make_render_kernel(features: Features):
     SPOT_LIGHTS = features.spot_lights
     DIRECTIONAL = features.directional_lights
     ENVIRONMENT = features.environment
+    ENVMAP = features.envmap
     EMITTING_SURFACES = HAS_LIGHTS or SPHERE_LIGHTS or MESH_LIGHTS  # hits can see emission
-    OTHER_LIGHTS = SPHERE_LIGHTS or MESH_LIGHTS or POINT_LIGHTS or SPOT_LIGHTS or DIRECTIONAL or ENVIRONMENT
+    OTHER_LIGHTS = (SPHERE_LIGHTS or MESH_LIGHTS or POINT_LIGHTS or SPOT_LIGHTS or DIRECTIONAL or ENVIRONMENT
+                    or ENVMAP)
     NEE = HAS_LIGHTS or OTHER_LIGHTS
+    OTHER_MATERIALS = features.other_materials
+    DELTA_MATERIALS = features.dielectrics or features.thin_dielectrics or features.conductors  # no NEE at all
+    # next-event estimation weighs each light sample by the BSDF towards it (diffuse alone: by albedo / pi, once)
+    BSDF_NEE = features.plastics or features.rough_conductors
+    MIS = features.rough_conductors  # glossy lobes: light and BSDF samples weighed by the power heuristic
+    GLASS = features.dielectrics
 
     trace, occluded = make_tracers(features)
+    sample_bsdf, eval_nee = make_materials(features)
+
+    @wp.func
+    def nee_weight(scene: SceneData, params: PassParams, mat: int, kind: int, d: wp.vec3, ns: wp.vec3, w: wp.vec3,
+                   cos_x: float, g: float, delta: bool) -> wp.vec3:
+        """What a light sample along ``w`` with cos_x / pdf = ``g`` is multiplied by besides Le g / K: the BSDF
+        value and MIS weight where the scene has materials that need them, else 1 (diffuse surfaces multiply by
+        albedo / pi once, at the end). ``delta``: a point or direction, which BSDF sampling never finds."""
+        if wp.static(not BSDF_NEE):
+            return wp.vec3(1.0)
+        ev = eval_nee(scene, mat, kind, d, ns, w)
+        if wp.static(MIS):
+            if ev.pdf > 0.0 and not delta and g > 0.0:
+                p_light = float(params.light_samples) * cos_x / g
+                return ev.f * (p_light * p_light / (p_light * p_light + ev.pdf * ev.pdf))
+        return ev.f
+
+    @wp.func
+    def emitter_mis(scene: SceneData, params: PassParams, hit: Hit, x: wp.vec3, d: wp.vec3, pdf_bsdf: float) -> float:
+        """Power-heuristic weight of emission at ``hit`` found by a glossy BSDF sample from ``x`` of density
+        ``pdf_bsdf``, against the K next-event samples that could have found it (the same density as they use)."""
+        l = hit.light
+        to_y = hit.p - x
+        dist2 = wp.dot(to_y, to_y)
+        p = float(0.0)
+        if l < scene.num_lights:
+            if wp.static(HAS_LIGHTS):
+                ln = scene.light_normal[l]
+                if wp.static(SOLID_ANGLE):
+                    if scene.light_rect[l] != 0 and wp.dot(x - scene.light_center[l], ln) > 0.0:
+                        hu = scene.light_half_u[l]
+                        hv = scene.light_half_v[l]
+                        sr = sample_spherical_rectangle(x, scene.light_center[l] - hu - hv, 2.0 * hu, 2.0 * hv, 0.5, 0.5)
+                        if sr.solid_angle > 0.0:
+                            p = 1.0 / sr.solid_angle
+                if p == 0.0:
+                    p = dist2 / (wp.max(wp.abs(wp.dot(ln, d)), 1.0e-12) * scene.light_area[l])
+        else:
+            j = l - scene.num_lights
+            if j < scene.num_sphere_lights:
+                if wp.static(SPHERE_LIGHTS):
+                    i = scene.sl_sphere[j]
+                    p = sphere_cone_pdf(x, scene.sphere_center[i], scene.sphere_radius[i])
+            else:
+                if wp.static(MESH_LIGHTS):
+                    m = j - scene.num_sphere_lights
+                    p = dist2 / (wp.max(wp.abs(wp.dot(hit.ng, d)), 1.0e-12) * scene.ml_area[m])
+        p = p * float(params.light_samples)
+        return pdf_bsdf * pdf_bsdf / (pdf_bsdf * pdf_bsdf + p * p)
 
     @wp.func
     def visible(scene: SceneData, hit: Hit, ng: wp.vec3, y: wp.vec3, yn: wp.vec3, y_scale: float, w: wp.vec3,
@@ -243,8 +314,8 @@ def make_render_kernel(features: Features):
         return cos_x
 
     @wp.func
-    def other_lights(scene: SceneData, params: PassParams, hit: Hit, ng: wp.vec3, ns: wp.vec3, key: wp.vec3ui,
-                     dim: wp.uint32, depth: int) -> wp.vec3:
+    def other_lights(scene: SceneData, params: PassParams, hit: Hit, ng: wp.vec3, ns: wp.vec3, mat: int, kind: int,
+                     d: wp.vec3, key: wp.vec3ui, dim: wp.uint32, depth: int) -> wp.vec3:
         """Next-event estimation of every emitter but the parallelograms: the sum of Le cos_x / pdf over the samples
         that see their emitter (K per sphere, mesh light and environment; one per point, spot and directional)."""
         Ld = wp.vec3(0.0)
@@ -263,7 +334,10 @@ def make_render_kernel(features: Features):
                     w = wp.normalize(es.p - hit.p)
                     if wp.dot(es.n, w) < 0.0:  # the emitting (outer) side faces the shading point
                         cos_x = lit(scene, hit, ng, ns, es.p, es.n, max_abs(es.p) + r, w, False)
-                        Ld += scene.light_radiance[scene.num_lights + j] * (cos_x * es.inv_pdf * inv_k)
+                        if cos_x > 0.0:
+                            g = cos_x * es.inv_pdf
+                            nw = nee_weight(scene, params, mat, kind, d, ns, w, cos_x, g, False)
+                            Ld += wp.cw_mul(scene.light_radiance[scene.num_lights + j], nw) * (g * inv_k)
         if wp.static(MESH_LIGHTS):
             for m in range(scene.num_mesh_lights):
                 start = scene.ml_start[m]
@@ -297,8 +371,11 @@ def make_render_kernel(features: Features):
                             ngy = -ngy  # offset the far end towards the shading point
                         y_scale = wp.max(max_abs(a), wp.max(max_abs(b), max_abs(c)))
                         cos_x = lit(scene, hit, ng, ns, es.p, -ngy, y_scale, w, False)
-                        Ld += scene.light_radiance[scene.num_lights + scene.num_sphere_lights + m] * (
-                            cos_x * es.inv_pdf * inv_k)
+                        if cos_x > 0.0:
+                            g = cos_x * es.inv_pdf
+                            nw = nee_weight(scene, params, mat, kind, d, ns, w, cos_x, g, False)
+                            Ld += wp.cw_mul(scene.light_radiance[scene.num_lights + scene.num_sphere_lights + m], nw) * (
+                                g * inv_k)
         if wp.static(POINT_LIGHTS):
             for j in range(scene.num_point_lights):
                 y = scene.pl_position[j]
@@ -307,7 +384,10 @@ def make_render_kernel(features: Features):
                 if dist2 <= 0.0:
                     continue
                 w = to_y / wp.sqrt(dist2)
-                Ld += scene.pl_intensity[j] * (lit(scene, hit, ng, ns, y, wp.vec3(0.0), 0.0, w, False) / dist2)
+                cos_x = lit(scene, hit, ng, ns, y, wp.vec3(0.0), 0.0, w, False)
+                if cos_x > 0.0:
+                    nw = nee_weight(scene, params, mat, kind, d, ns, w, cos_x, 0.0, True)
+                    Ld += wp.cw_mul(scene.pl_intensity[j], nw) * (cos_x / dist2)
         if wp.static(SPOT_LIGHTS):
             for j in range(scene.num_spot_lights):
                 y = scene.spot_position[j]
@@ -321,19 +401,39 @@ def make_render_kernel(features: Features):
                                        cone[3])
                 if falloff > 0.0:  # no shadow ray outside the cone
                     cos_x = lit(scene, hit, ng, ns, y, wp.vec3(0.0), 0.0, w, False)
-                    Ld += scene.spot_intensity[j] * (falloff * cos_x / dist2)
+                    if cos_x > 0.0:
+                        nw = nee_weight(scene, params, mat, kind, d, ns, w, cos_x, 0.0, True)
+                        Ld += wp.cw_mul(scene.spot_intensity[j], nw) * (falloff * cos_x / dist2)
         if wp.static(DIRECTIONAL):
             for j in range(scene.num_directional_lights):
                 w = -scene.dl_direction[j]
-                Ld += scene.dl_irradiance[j] * lit(scene, hit, ng, ns, hit.p, wp.vec3(0.0), 0.0, w, True)
+                cos_x = lit(scene, hit, ng, ns, hit.p, wp.vec3(0.0), 0.0, w, True)
+                if cos_x > 0.0:
+                    nw = nee_weight(scene, params, mat, kind, d, ns, w, cos_x, 0.0, True)
+                    Ld += wp.cw_mul(scene.dl_irradiance[j], nw) * cos_x
         if wp.static(ENVIRONMENT):
             # cosine-weighted directions: Le cos_x / pdf = pi Le (the bounce that follows never counts the sky)
             for k in range(params.light_samples):
                 u = wp.static(draw4)(key, dim, depth)
                 dim += wp.uint32(1)
                 w = sample_cosine_around(ns, u[0], u[1])
-                if lit(scene, hit, ng, ns, hit.p, wp.vec3(0.0), 0.0, w, True) > 0.0:
-                    Ld += scene.env_radiance * (wp.pi * inv_k)
+                cos_x = lit(scene, hit, ng, ns, hit.p, wp.vec3(0.0), 0.0, w, True)
+                if cos_x > 0.0:
+                    nw = nee_weight(scene, params, mat, kind, d, ns, w, cos_x, wp.pi, False)
+                    Ld += wp.cw_mul(scene.env_radiance, nw) * (wp.pi * inv_k)
+        if wp.static(ENVMAP):
+            # directions drawn from the map's own distribution (luminance times sin theta)
+            for k in range(params.light_samples):
+                u = wp.static(draw4)(key, dim, depth)
+                dim += wp.uint32(1)
+                es = env_sample(scene, u[0], u[1])
+                if es.pdf <= 0.0:
+                    continue
+                cos_x = lit(scene, hit, ng, ns, hit.p, wp.vec3(0.0), 0.0, es.d, True)
+                if cos_x > 0.0:
+                    g = cos_x / es.pdf
+                    nw = nee_weight(scene, params, mat, kind, d, ns, es.d, cos_x, g, False)
+                    Ld += wp.cw_mul(env_eval(scene, es.d), nw) * (g * inv_k)
         return Ld
 
     @wp.func
@@ -369,6 +469,10 @@ def make_render_kernel(features: Features):
         rays = wp.int64(0)  # rays traced (counted only in the instrumented variant)
         # camera -> diffuse first hit -> mirrors -> light: the light tracer's share of path space, when it runs
         lt_owned = bool(False)
+        mis_pdf = float(0.0)  # > 0: the current ray is a glossy BSDF sample of this density, from prev_p
+        prev_p = wp.vec3(0.0)
+        prev_ns = wp.vec3(0.0)  # the shading normal there (the environment's light samples are cosine-weighted)
+        eta_scale = float(1.0)  # product of the relative indices crossed (for roulette, as Mitsuba)
 
         if wp.static(VIEW == VIEW_DIRECTION):
             L = 0.5 * d + wp.vec3(0.5)
@@ -381,7 +485,23 @@ def make_render_kernel(features: Features):
                 if hit.material < 0:
                     if wp.static(ENVIRONMENT):  # seen directly or through mirrors; after diffuse bounces by NEE
                         if count_emission and (depth > 0 or params.hide_emitters == 0):
-                            L += wp.cw_mul(beta, scene.env_radiance)
+                            if wp.static(MIS):
+                                if mis_pdf > 0.0:
+                                    p_env = float(params.light_samples) * wp.max(0.0, wp.dot(prev_ns, d)) / wp.pi
+                                    L += wp.cw_mul(beta, scene.env_radiance) * (
+                                        mis_pdf * mis_pdf / (mis_pdf * mis_pdf + p_env * p_env))
+                                else:
+                                    L += wp.cw_mul(beta, scene.env_radiance)
+                            else:
+                                L += wp.cw_mul(beta, scene.env_radiance)
+                    if wp.static(ENVMAP):
+                        if count_emission and (depth > 0 or params.hide_emitters == 0):
+                            Le = env_eval(scene, d)
+                            if wp.static(MIS):
+                                if mis_pdf > 0.0:
+                                    p_env = float(params.light_samples) * env_pdf(scene, d)
+                                    Le = Le * (mis_pdf * mis_pdf / (mis_pdf * mis_pdf + p_env * p_env))
+                            L += wp.cw_mul(beta, Le)
                     break  # without an environment the sky is black
 
                 if wp.static(VIEW == VIEW_NORMAL):
@@ -396,7 +516,14 @@ def make_render_kernel(features: Features):
                     # shading frame; it is the face normal but on smooth meshes)
                     if count_emission and hit.light >= 0 and wp.dot(d, hit.ns) < 0.0 and not lt_owned:
                         if depth > 0 or params.hide_emitters == 0:
-                            L += wp.cw_mul(beta, scene.light_radiance[hit.light])
+                            if wp.static(MIS):
+                                if mis_pdf > 0.0:
+                                    L += wp.cw_mul(beta, scene.light_radiance[hit.light]) * emitter_mis(
+                                        scene, params, hit, prev_p, d, mis_pdf)
+                                else:
+                                    L += wp.cw_mul(beta, scene.light_radiance[hit.light])
+                            else:
+                                L += wp.cw_mul(beta, scene.light_radiance[hit.light])
 
                 if params.max_depth >= 0 and depth + 1 >= params.max_depth:
                     break
@@ -414,15 +541,36 @@ def make_render_kernel(features: Features):
                     break  # the shading normal faces away from the viewer: no reflection, as in Mitsuba
                 albedo = scene.mat_rgb[mat]
 
+                kind = int(MAT_DIFFUSE)
+                if wp.static(HAS_MIRROR or OTHER_MATERIALS):
+                    kind = scene.mat_kind[mat]
                 is_mirror = bool(False)
                 if wp.static(HAS_MIRROR):
-                    is_mirror = scene.mat_kind[mat] == 1
+                    is_mirror = kind == 1
+                is_delta = bool(False)  # glass or a smooth conductor: sampled only
+                if wp.static(DELTA_MATERIALS):
+                    is_delta = kind == MAT_DIELECTRIC or kind == MAT_THIN_DIELECTRIC or kind == MAT_CONDUCTOR
 
                 wi = wp.vec3(0.0)
+                weight = albedo  # f cos / pdf of the sampled direction
+                transmit = bool(False)
+                mis_pdf = 0.0
                 if is_mirror:
                     # ---------------- mirror: perfect reflection ----------------
                     wi = reflect(d, ns)
                     count_emission = True
+                elif is_delta:
+                    # ---------------- glass, smooth conductors: one delta lobe, picked by its Fresnel weight ----
+                    if wp.static(DELTA_MATERIALS):
+                        u = wp.static(draw4)(key, dim, depth)
+                        dim += wp.uint32(1)
+                        bs = sample_bsdf(scene, mat, kind, d, ns, front, u)
+                        wi = bs.wo
+                        weight = bs.weight
+                        transmit = bs.transmit
+                        count_emission = True
+                        if wp.static(GLASS):
+                            eta_scale *= bs.eta
                 else:
                     # ---------------- diffuse: next-event estimation ----------------
                     Ld = wp.vec3(0.0)
@@ -430,7 +578,7 @@ def make_render_kernel(features: Features):
                         for l in range(scene.num_lights):
                             ln = scene.light_normal[l]
                             l_scale = light_sample_scale(scene, l)
-                            Ll = float(0.0)
+                            Ll = wp.vec3(0.0)
                             for k in range(params.light_samples):
                                 u = wp.static(draw4)(key, dim, depth)
                                 dim += wp.uint32(1)
@@ -461,30 +609,49 @@ def make_render_kernel(features: Features):
                                 if wp.static(HAS_QUADS):
                                     light_quad = scene.light_quad[l]
                                 if visible(scene, hit, ng, y, ln, l_scale, w, light_quad, False):
+                                    g = float(0.0)  # cos_x / pdf
                                     if omega > 0.0:
-                                        Ll += cos_x * omega
+                                        g = cos_x * omega
                                     else:
-                                        Ll += cos_x * cos_y / dist2 * scene.light_area[l]
-                            Ld += scene.light_radiance[l] * (Ll / float(params.light_samples))
+                                        g = cos_x * cos_y / dist2 * scene.light_area[l]
+                                    Ll += nee_weight(scene, params, mat, kind, d, ns, w, cos_x, g, False) * g
+                            Ld += wp.cw_mul(scene.light_radiance[l], Ll / float(params.light_samples))
                     if wp.static(OTHER_LIGHTS):
-                        Ld += other_lights(scene, params, hit, ng, ns, key, dim, depth)
+                        Ld += other_lights(scene, params, hit, ng, ns, mat, kind, d, key, dim, depth)
                         # the dims other_lights drew: K per sphere light, mesh light and environment
                         dim += wp.uint32(params.light_samples * (scene.num_sphere_lights + scene.num_mesh_lights
-                                                                 + wp.static(int(ENVIRONMENT))))
+                                                                 + wp.static(int(ENVIRONMENT or ENVMAP))))
                     if wp.static(NEE):
-                        L += wp.cw_mul(wp.cw_mul(beta, albedo), Ld) * (1.0 / wp.pi)
+                        if wp.static(BSDF_NEE):
+                            L += wp.cw_mul(beta, Ld)
+                        else:
+                            L += wp.cw_mul(wp.cw_mul(beta, albedo), Ld) * (1.0 / wp.pi)
 
-                    # ---------------- diffuse: cosine-weighted bounce ----------------
+                    # ---------------- bounce: cosine-weighted (diffuse), or the BSDF's own sampling ----------
                     u = wp.static(draw4)(key, dim, depth)
                     dim += wp.uint32(1)
-                    wi = sample_cosine_around(ns, u[0], u[1])
                     count_emission = False
-                    if wp.static(LIGHT_TRACING):
-                        lt_owned = depth == 0
+                    if kind == MAT_DIFFUSE:
+                        wi = sample_cosine_around(ns, u[0], u[1])
+                        if wp.static(LIGHT_TRACING):
+                            lt_owned = depth == 0
+                    else:
+                        if wp.static(BSDF_NEE):
+                            bs = sample_bsdf(scene, mat, kind, d, ns, front, u)
+                            wi = bs.wo
+                            weight = bs.weight
+                            count_emission = bs.count_emission
+                            if wp.static(MIS):
+                                mis_pdf = bs.pdf
+                                prev_p = hit.p
+                                prev_ns = ns
 
-                if wp.dot(wi, ng) <= 0.0:
+                if transmit:
+                    if wp.dot(wi, ng) >= 0.0:
+                        break  # refracted or passed through, yet not to the other side of the surface
+                elif wp.dot(wi, ng) <= 0.0:
                     break  # the new direction would go through the surface
-                beta = wp.cw_mul(beta, albedo)
+                beta = wp.cw_mul(beta, weight)
                 depth += 1
 
                 # ---------------- Russian roulette ----------------
@@ -497,7 +664,7 @@ def make_render_kernel(features: Features):
                         beta = beta / (1.0 - SEED_RR_LAMBDA)
                 if wp.static(RR == RR_THROUGHPUT):
                     if depth >= params.rr_depth:
-                        q_rr = wp.min(wp.max(beta[0], wp.max(beta[1], beta[2])), 0.95)
+                        q_rr = wp.min(wp.max(beta[0], wp.max(beta[1], beta[2])) * eta_scale * eta_scale, 0.95)
                         u = wp.static(draw4)(key, dim, depth)
                         dim += wp.uint32(1)
                         if u[0] >= q_rr:

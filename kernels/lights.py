@@ -50,6 +50,17 @@ def sample_sphere_cone(x: wp.vec3, c: wp.vec3, r: float, u1: float, u2: float) -
 
 
 @wp.func
+def sphere_cone_pdf(x: wp.vec3, c: wp.vec3, r: float) -> float:
+    """The solid-angle density of ``sample_sphere_cone`` from ``x``; 0 from inside the sphere (no samples there)."""
+    to_c = c - x
+    dist2 = wp.dot(to_c, to_c)
+    if dist2 <= r * r:
+        return 0.0
+    sin2_max = r * r / dist2
+    return 1.0 / (2.0 * wp.pi * (sin2_max / (1.0 + wp.sqrt(wp.max(0.0, 1.0 - sin2_max)))))
+
+
+@wp.func
 def sample_triangle_light(x: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3, n: wp.vec3, total_area: float,
                           u1: float, u2: float) -> EmitterSample:
     """A point uniform in triangle (a, b, c) of a mesh light whose triangles are picked in proportion to their

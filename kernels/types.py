@@ -56,9 +56,14 @@ class SceneData:
     quad_group_end: wp.array(dtype=wp.int32)  # > i: quad i starts a boxed group (one shape) ending before this
     quad_box_lo: wp.array(dtype=wp.vec3d)  # that group's bounding box, padded (set at group starts only)
     quad_box_hi: wp.array(dtype=wp.vec3d)
-    mat_kind: wp.array(dtype=wp.int32)  # 0 diffuse, 1 mirror
-    mat_rgb: wp.array(dtype=wp.vec3)
-    mat_twosided: wp.array(dtype=wp.int32)
+    mat_kind: wp.array(dtype=wp.int32)  # pathtracer.scene.MATERIAL_KINDS
+    mat_rgb: wp.array(dtype=wp.vec3)  # reflectance: diffuse (diffuse, plastic) or specular (the others)
+    mat_twosided: wp.array(dtype=wp.int32)  # 1: scatters on both sides (glass always)
+    mat_rgb2: wp.array(dtype=wp.vec3)  # specular transmittance (glass), the coat's reflectance (plastic)
+    mat_eta: wp.array(dtype=wp.vec3)  # relative index of refraction (glass, plastic: [0]); conductors' eta per channel
+    mat_k: wp.array(dtype=wp.vec3)  # conductors' k
+    mat_param: wp.array(dtype=wp.vec4)  # alpha, distribution (kernels/bsdfs.py), plastic's coat pick weight, fdr_int
+    mat_nonlinear: wp.array(dtype=wp.int32)  # plastic's nonlinear flag
     light_center: wp.array(dtype=wp.vec3)
     light_half_u: wp.array(dtype=wp.vec3)
     light_half_v: wp.array(dtype=wp.vec3)
@@ -91,6 +96,14 @@ class SceneData:
     dl_irradiance: wp.array(dtype=wp.vec3)
     num_directional_lights: int
     env_radiance: wp.vec3  # the constant environment's radiance (when the scene has one)
+    env_image: wp.array(dtype=wp.vec3)  # Mitsuba's envmap (kernels/envmap.py): H x W texels, row by row
+    env_width: int
+    env_height: int
+    env_to_local: wp.mat33  # world -> the map's frame (directions)
+    env_to_world: wp.mat33
+    env_scale: float
+    env_row_cdf: wp.array(dtype=float)  # H - 1 rows of cells: marginal CDF
+    env_col_cdf: wp.array(dtype=float)  # W per row: the CDF of the cells within the row
 
 
 @wp.struct

@@ -10,6 +10,7 @@ import numpy as np
 import warp as wp
 
 from kernels.integrator import LIGHT_SAMPLINGS, RR_RULES, SAMPLERS, TRIANGLES, VIEWS, Features
+from kernels.bsdfs import DISTRIBUTIONS
 from kernels.types import CameraData, SceneData
 from kernels.triangle import STACK_SIZE
 from pathtracer.bvh import BoxTree, WideTree, build_tree, collapse_wide, leaf_lanes
@@ -284,7 +285,14 @@ class DeviceScene:
 
         d.mat_kind = _arr([m.code for m in scene.materials], wp.int32, device)
         d.mat_rgb = _vec3([m.rgb for m in scene.materials], device)
-        d.mat_twosided = _arr([int(m.twosided) for m in scene.materials], wp.int32, device)
+        d.mat_twosided = _arr([int(m.is_twosided) for m in scene.materials], wp.int32, device)
+        d.mat_rgb2 = _vec3([m.rgb2 for m in scene.materials], device)
+        d.mat_eta = _vec3([m.eta for m in scene.materials], device)
+        d.mat_k = _vec3([m.k for m in scene.materials], device)
+        params = [[m.alpha, DISTRIBUTIONS[m.distribution], m.specular_sampling_weight if m.kind == "plastic" else 0.0,
+                   m.fdr_int if m.kind == "plastic" else 0.0] for m in scene.materials]
+        d.mat_param = wp.array(np.array(params, dtype=np.float32).reshape(-1, 4), dtype=wp.vec4, device=device)
+        d.mat_nonlinear = _arr([int(m.nonlinear) for m in scene.materials], wp.int32, device)
 
         lights = scene.lights
         d.light_center = _vec3([l.center for l in lights], device)
@@ -351,6 +359,17 @@ class DeviceScene:
         d.dl_irradiance = _vec3([l.irradiance for l in scene.directional_lights], device)
         d.num_directional_lights = len(scene.directional_lights)
         d.env_radiance = wp.vec3(*(scene.environment or (0.0, 0.0, 0.0)))
+        em = scene.envmap
+        img = np.zeros((2, 1, 3), np.float32) if em is None else np.ascontiguousarray(em.image, np.float32)
+        d.env_image = wp.array(img.reshape(-1, 3), dtype=wp.vec3, device=device)
+        d.env_height, d.env_width = int(img.shape[0]), int(img.shape[1])
+        rot = np.eye(3) if em is None else np.asarray(em.to_world, np.float64)
+        d.env_to_world = wp.mat33(*rot.astype(np.float32).reshape(-1))
+        d.env_to_local = wp.mat33(*np.linalg.inv(rot).astype(np.float32).reshape(-1))
+        d.env_scale = 1.0 if em is None else float(em.scale)
+        row_cdf, col_cdf = envmap_cdfs(img)
+        d.env_row_cdf = wp.array(row_cdf, dtype=wp.float32, device=device)
+        d.env_col_cdf = wp.array(col_cdf, dtype=wp.float32, device=device)
 
     @staticmethod
     def features(scene: Scene, view: str = "radiance", rr: str = "throughput", sampler: str = "independent",
@@ -358,10 +377,16 @@ class DeviceScene:
         """The compile-time features ``scene`` needs: nothing it does not use."""
         used = {s.material for s in scene.spheres} | {m.material for m in scene.meshes if len(m.faces)}
         quads, tri = split_scene(scene)
+        kinds = {scene.materials[i].kind for i in used}
         return Features(
             meshes=len(tri) > 0,
             spheres=len(scene.spheres) > 0,
             mirrors=any(scene.materials[i].code == MIRROR for i in used),
+            dielectrics="dielectric" in kinds,
+            thin_dielectrics="thindielectric" in kinds,
+            conductors="conductor" in kinds,
+            plastics="plastic" in kinds,
+            rough_conductors="roughconductor" in kinds,
             smooth_normals=any(m.normals is not None for m in tri),
             lights=len(scene.lights) > 0,
             quads=len(quads) > 0,
@@ -379,7 +404,33 @@ class DeviceScene:
             spot_lights=len(scene.spot_lights) > 0,
             directional_lights=len(scene.directional_lights) > 0,
             environment=scene.environment is not None,
+            envmap=scene.envmap is not None,
         )
+
+
+def envmap_cdfs(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The sampling tables of kernels/envmap.py for an (H, W, 3) map: cells between texel rows i and i + 1 and
+    over u in [j / W, (j + 1) / W), each weighed by the largest luminance of the texels its bilinear radiance
+    mixes (rows i, i + 1; columns j - 1 .. j + 1) times the largest sin(theta) over it, so that no cell whose
+    radiance is positive anywhere has probability 0. Returns the row CDF (H - 1) and per-row column CDFs."""
+    h, w = img.shape[:2]
+    lum = img.astype(np.float64) @ np.array([0.212671, 0.715160, 0.072169])
+    pair = np.maximum(lum[:-1], lum[1:])  # (H - 1, W)
+    near = np.maximum(pair, np.maximum(np.roll(pair, 1, axis=1), np.roll(pair, -1, axis=1)))
+    v0 = np.arange(h - 1) / (h - 1)
+    v1 = np.arange(1, h) / (h - 1)
+    sin_max = np.where((v0 <= 0.5) & (v1 >= 0.5), 1.0, np.maximum(np.sin(np.pi * v0), np.sin(np.pi * v1)))
+    weight = near * sin_max[:, None]
+    rows = weight.sum(axis=1)
+    if rows.sum() <= 0:  # an all-black map: nothing to sample, any valid table will do
+        weight = np.ones_like(weight)
+        rows = weight.sum(axis=1)
+    row_cdf = np.cumsum(rows) / rows.sum()
+    row_cdf[-1] = 1.0
+    safe = np.where(rows > 0, rows, 1.0)[:, None]
+    col_cdf = np.cumsum(np.where(rows[:, None] > 0, weight, 1.0 / w), axis=1) / np.where(rows > 0, safe[:, 0], 1.0)[:, None]
+    col_cdf[:, -1] = 1.0
+    return row_cdf.astype(np.float32), col_cdf.reshape(-1).astype(np.float32)
 
 
 def camera_data(scene: Scene, device=None) -> CameraData:

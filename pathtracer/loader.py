@@ -8,6 +8,10 @@ semantics, defaults and checks live here, once. Supported subset, with Mitsuba 3
 element     type         properties (default)
 =========== ============ ==========================================================================
 integrator  path         max_depth (-1, unlimited; >= -1), rr_depth (5; > 0), hide_emitters (false)
+integrator  direct       path with max_depth 2 (the same paths and MIS); emitter_samples (or
+                         shading_samples, 1) are next-event samples per light, bsdf_samples (1) one
+                         BSDF sample; delta lights are not multiplied by emitter_samples (Mitsuba
+                         3.9.1 does that: its bug #1861)
 sensor      perspective  fov (degrees, 0 < fov < 180) with fov_axis (x | y | diagonal | smaller |
                          larger), or focal_length ("50mm": the diagonal fov of a 36 x 24 mm film),
                          near_clip (0.01), far_clip (10000), to_world (rigid); focus_distance,
@@ -23,8 +27,16 @@ rfilter     box          (radius 0.5: each sample counts in its own pixel)
 rfilter     tent         radius (1.0; in (0, 64] pixels)
 rfilter     gaussian     stddev (0.5; in (0, 64] pixels), radius 4 stddev
 bsdf        diffuse      reflectance (0.5; rgb or float in [0, 1])
-bsdf        conductor    material ("none" only: a perfect mirror), specular_reflectance (1.0)
-bsdf        twosided     exactly one nested diffuse or conductor
+bsdf        conductor    material (a name of Mitsuba's table, or "none": a perfect mirror) or eta
+                         (0) and k (1), specular_reflectance (1.0)
+bsdf        roughconductor  the same, distribution (beckmann | ggx), alpha (0.1; >= 0; or
+                         alpha_u = alpha_v: isotropic only), sample_visible (noise only)
+bsdf        dielectric   int_ior ("bk7"), ext_ior ("air"): a number or a name of Mitsuba's table,
+                         specular_reflectance, specular_transmittance (1.0)
+bsdf        thindielectric  the same
+bsdf        plastic      diffuse_reflectance (0.5), specular_reflectance (1.0), int_ior
+                         ("polypropylene"), ext_ior ("air"), nonlinear (false)
+bsdf        twosided     exactly one nested bsdf (one-sided ones then reflect on both sides)
 shape       sphere       center (0), radius (1; > 0), to_world (translation, rotation and uniform
                          scale only; no mirroring, which turns Mitsuba's sphere inside out);
                          Mitsuba composes to_world * translate(center) * scale(radius)
@@ -40,6 +52,9 @@ emitter     point        intensity (1.0), position or to_world (translation only
 emitter     spot         intensity, cutoff_angle (20), beam_width (3/4 cutoff), to_world (local +z)
 emitter     directional  irradiance (1.0), direction or to_world (local +z)
 emitter     constant     radiance (1.0); one environment per scene
+emitter     envmap       filename (an OpenEXR or PNG latitude-longitude map), scale (1.0; >= 0),
+                         to_world (rotation only), mis_compensation (noise only); one
+                         environment per scene
 =========== ============ ==========================================================================
 
 Every shape takes ``flip_normals`` = false only and at most one bsdf (inline or ``ref``); a shape
@@ -66,6 +81,7 @@ element and what is supported. Nothing is ignored or approximated silently.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -73,14 +89,17 @@ from pathlib import Path
 
 import numpy as np
 
-from . import meshio, spectra
+from . import imageio, meshio, spectra
+from .errors import ImageIOError
+from .material_data import CONDUCTOR_RGB, IOR as IOR_TABLE
 from . import transform as tf
 from .errors import SceneError
 from .loader_xml import Point3, XmlDict, parse_file, resolve_file
-from .scene import (DEFAULT_MATERIAL, Camera, DirectionalLight, Integrator, Material, MeshLight, PixelFilter,
+from .scene import (DEFAULT_MATERIAL, Camera, DirectionalLight, EnvMap, Integrator, Material, MeshLight, PixelFilter,
                     PointLight, RectLight, Scene, Sphere, SphereLight, SpotLight, TriangleMesh)
 
 FLOAT, INT, BOOL, STRING, POINT, COLOR, TRANSFORM = "float", "integer", "boolean", "string", "point", "rgb", "transform"
+IOR = "ior"  # a number, or a name of Mitsuba's table of indices of refraction
 UINT32_MAX = 2**32 - 1
 
 
@@ -93,6 +112,8 @@ class Plugin:
 
 PLUGINS = {
     "path": Plugin("integrator", {"max_depth": INT, "rr_depth": INT, "hide_emitters": BOOL}),
+    "direct": Plugin("integrator", {"shading_samples": INT, "emitter_samples": INT, "bsdf_samples": INT,
+                                    "hide_emitters": BOOL}),
     "perspective": Plugin("sensor", {"fov": FLOAT, "focal_length": STRING, "fov_axis": STRING, "near_clip": FLOAT,
                                      "far_clip": FLOAT, "focus_distance": FLOAT, "principal_point_offset_x": FLOAT,
                                      "principal_point_offset_y": FLOAT, "shutter_open": FLOAT,
@@ -110,7 +131,16 @@ PLUGINS = {
     "tent": Plugin("rfilter", {"radius": FLOAT}),
     "gaussian": Plugin("rfilter", {"stddev": FLOAT}),
     "diffuse": Plugin("bsdf", {"reflectance": COLOR}),
-    "conductor": Plugin("bsdf", {"material": STRING, "specular_reflectance": COLOR}),
+    "conductor": Plugin("bsdf", {"material": STRING, "eta": COLOR, "k": COLOR, "specular_reflectance": COLOR}),
+    "roughconductor": Plugin("bsdf", {"material": STRING, "eta": COLOR, "k": COLOR, "specular_reflectance": COLOR,
+                                      "distribution": STRING, "alpha": FLOAT, "alpha_u": FLOAT, "alpha_v": FLOAT,
+                                      "sample_visible": BOOL}),
+    "dielectric": Plugin("bsdf", {"int_ior": IOR, "ext_ior": IOR, "specular_reflectance": COLOR,
+                                  "specular_transmittance": COLOR}),
+    "thindielectric": Plugin("bsdf", {"int_ior": IOR, "ext_ior": IOR, "specular_reflectance": COLOR,
+                                      "specular_transmittance": COLOR}),
+    "plastic": Plugin("bsdf", {"diffuse_reflectance": COLOR, "specular_reflectance": COLOR, "int_ior": IOR,
+                               "ext_ior": IOR, "nonlinear": BOOL}),
     "twosided": Plugin("bsdf", {}, ("bsdf",)),
     "sphere": Plugin("shape", {"center": POINT, "radius": FLOAT, "to_world": TRANSFORM, "flip_normals": BOOL},
                      ("bsdf", "emitter")),
@@ -129,6 +159,9 @@ PLUGINS = {
     "directional": Plugin("emitter", {"irradiance": COLOR, "direction": POINT, "to_world": TRANSFORM,
                                       "sampling_weight": FLOAT}),
     "constant": Plugin("emitter", {"radiance": COLOR, "sampling_weight": FLOAT}),
+    # mis_compensation only changes how Mitsuba samples the map (noise, not the image): accepted
+    "envmap": Plugin("emitter", {"filename": STRING, "scale": FLOAT, "to_world": TRANSFORM, "mis_compensation": BOOL,
+                                 "sampling_weight": FLOAT}),
 }
 
 # Mitsuba 3 plugins we do not support, by category: for dict scenes (where only the type names
@@ -150,10 +183,7 @@ MITSUBA_TYPES = {
 }
 TYPE_CATEGORY = {t: cat for cat, names in MITSUBA_TYPES.items() for t in names.split()}
 VALUE_TYPES = {"rgb", "spectrum", "ref"}
-HINTS = {
-    "eta": ' (only material="none", a perfect mirror, is supported)',
-    "k": ' (only material="none", a perfect mirror, is supported)',
-}
+HINTS: dict[str, str] = {}
 FOV_AXES = ("x", "y", "diagonal", "smaller", "larger")
 EMISSIVE = ("radiance", "intensity", "irradiance")  # the emitters' colours
 
@@ -380,6 +410,15 @@ class _Builder:
             if not isinstance(v, str):
                 self.fail(where, f"{key} must be a string (got {_show(v)})")
             return v
+        if kind == IOR:
+            if isinstance(v, str):
+                name = v.lower()
+                if name not in IOR_TABLE:
+                    self.fail(where, f'unknown {key} "{v}" (known: {", ".join(IOR_TABLE)}; or give a number)')
+                return IOR_TABLE[name]
+            if not _is_number(v) or not np.isfinite(_float(v)):
+                self.fail(where, f"{key} must be a finite number or a material name (got {_show(v)})")
+            return self.in_range(where, key, _float(v), _float(v) > 0.0, "> 0")
         if kind == POINT:
             return self.vec3(v, where, key, "a point (3 numbers)")
         if kind == COLOR:
@@ -519,10 +558,13 @@ class _Builder:
             self.in_range(w("sampling_weight"), "sampling_weight", sw, sw >= 0, ">= 0")
         if t == "area":
             return  # attached where a shape refers to it, or (as in Mitsuba) dropped
-        if t == "constant":
-            if scene.environment is not None:
-                self.fail(_where(node, path), "only one environment emitter (constant) is allowed per scene")
-            scene.environment = self.emitter_colour(node, path, props, "radiance")
+        if t in ("constant", "envmap"):
+            if scene.environment is not None or scene.envmap is not None:
+                self.fail(_where(node, path), "only one environment emitter (constant or envmap) is allowed per scene")
+            if t == "constant":
+                scene.environment = self.emitter_colour(node, path, props, "radiance")
+            else:
+                scene.envmap = self.envmap(node, path, props)
             return
         m = self.value(node, path, props, "to_world", TRANSFORM, None)
         if t == "point":
@@ -562,12 +604,31 @@ class _Builder:
         spec = self.spec(node, path, ("integrator",))
         props, _ = self.fields(node, path, spec)
         w = lambda k: _prop_where(node, path, k)  # noqa: E731
+        if node["type"] == "direct":
+            return self.direct(node, path, props)
         max_depth = self.value(node, path, props, "max_depth", INT, -1)
         self.in_range(w("max_depth"), "max_depth", max_depth, max_depth >= -1, "-1 (unlimited) or >= 0")
         rr_depth = self.value(node, path, props, "rr_depth", INT, 5)
         self.in_range(w("rr_depth"), "rr_depth", rr_depth, rr_depth > 0, "> 0")
         hide = self.value(node, path, props, "hide_emitters", BOOL, False)
         return Integrator(max_depth=max_depth, rr_depth=rr_depth, hide_emitters=hide)
+
+    def direct(self, node: Mapping, path: str, props: dict) -> Integrator:
+        """Mitsuba's direct illumination integrator, as path tracing with max_depth 2."""
+        w = lambda k: _prop_where(node, path, k)  # noqa: E731
+        if "shading_samples" in props and ("emitter_samples" in props or "bsdf_samples" in props):
+            self.fail(w("shading_samples"), "give shading_samples or emitter_samples and bsdf_samples, not both")
+        n = self.value(node, path, props, "shading_samples", INT, 1)
+        self.in_range(w("shading_samples"), "shading_samples", n, n > 0, "> 0")
+        n_e = self.value(node, path, props, "emitter_samples", INT, n)
+        n_b = self.value(node, path, props, "bsdf_samples", INT, n)
+        # with none of one kind, Mitsuba drops whole kinds of paths (point lights, or emitters seen in mirrors)
+        self.in_range(w("emitter_samples"), "emitter_samples", n_e, n_e > 0, "> 0")
+        self.in_range(w("bsdf_samples"), "bsdf_samples", n_b, n_b > 0, "> 0")
+        if self.value(node, path, props, "hide_emitters", BOOL, False):
+            self.fail(w("hide_emitters"), "hide_emitters=true is not supported for direct (Mitsuba's direct then "
+                                          "looks through area emitters at what is behind them)")
+        return Integrator(max_depth=2, kind="direct", light_samples=n_e)
 
     def sensor(self, node: Mapping, path: str) -> Scene:
         spec = self.spec(node, path, ("sensor",))
@@ -701,27 +762,93 @@ class _Builder:
         w = lambda k: _prop_where(node, path, k)  # noqa: E731
         if t == "twosided":
             if not objs:
-                self.fail(_where(node, path), "twosided needs one nested bsdf (diffuse or conductor)")
+                self.fail(_where(node, path), "twosided needs one nested bsdf")
             if len(objs) > 1:
                 self.fail(_where(objs[1].node, objs[1].path), "twosided with two different bsdfs (front and back) "
                                                               "is not supported: give one")
             inner = self.material(objs[0].node, objs[0].path)
             if inner.twosided:
                 self.fail(_where(objs[0].node, objs[0].path), "a twosided bsdf cannot be nested in a twosided bsdf")
-            mat = Material(inner.kind, inner.rgb, twosided=True)
+            mat = dataclasses.replace(inner, twosided=True)
         elif t == "diffuse":
             rgb = self.value(node, path, props, "reflectance", COLOR, (0.5, 0.5, 0.5))
             mat = Material("diffuse", self.reflectance(w("reflectance"), "reflectance", rgb))
-        else:  # conductor
-            name = self.value(node, path, props, "material", STRING, "none")
-            if name != "none":
-                self.fail(w("material"), f'conductor material "{name}" is not supported '
-                                         f'(supported: none, a perfect mirror scaled by specular_reflectance)')
-            rgb = self.value(node, path, props, "specular_reflectance", COLOR, (1.0, 1.0, 1.0))
-            mat = Material("mirror", self.reflectance(w("specular_reflectance"), "specular_reflectance", rgb))
+        elif t in ("dielectric", "thindielectric", "plastic"):
+            int_ior = self.value(node, path, props, "int_ior", IOR, IOR_TABLE["polypropylene" if t == "plastic" else "bk7"])
+            ext_ior = self.value(node, path, props, "ext_ior", IOR, IOR_TABLE["air"])
+            if t == "plastic" and int_ior == ext_ior:
+                self.fail(w("int_ior"), "plastic needs int_ior and ext_ior to differ (Mitsuba refuses equal ones)")
+            eta = (int_ior / ext_ior,) * 3
+            spec = self.reflectance(w("specular_reflectance"), "specular_reflectance",
+                                    self.value(node, path, props, "specular_reflectance", COLOR, (1.0, 1.0, 1.0)))
+            if t == "plastic":
+                diffuse = self.reflectance(w("diffuse_reflectance"), "diffuse_reflectance",
+                                           self.value(node, path, props, "diffuse_reflectance", COLOR, (0.5, 0.5, 0.5)))
+                nonlinear = self.value(node, path, props, "nonlinear", BOOL, False)
+                mat = Material("plastic", diffuse, rgb2=spec, eta=eta, nonlinear=nonlinear)
+            else:
+                trans = self.reflectance(w("specular_transmittance"), "specular_transmittance", self.value(
+                    node, path, props, "specular_transmittance", COLOR, (1.0, 1.0, 1.0)))
+                mat = Material(t, spec, rgb2=trans, eta=eta)
+        else:  # conductor, roughconductor
+            eta, k = self.complex_ior(node, path, props)
+            rgb = self.reflectance(w("specular_reflectance"), "specular_reflectance",
+                                   self.value(node, path, props, "specular_reflectance", COLOR, (1.0, 1.0, 1.0)))
+            if t == "conductor":
+                if eta == (0.0, 0.0, 0.0) and k == (1.0, 1.0, 1.0):
+                    mat = Material("mirror", rgb)  # Fresnel reflectance 1 at every angle
+                else:
+                    mat = Material("conductor", rgb, eta=eta, k=k)
+            else:
+                dist = self.value(node, path, props, "distribution", STRING, "beckmann")
+                if dist not in ("beckmann", "ggx"):
+                    self.fail(w("distribution"), f'unknown distribution "{dist}" (supported: beckmann, ggx)')
+                alpha = self.roughness(node, path, props)
+                mat = Material("roughconductor", rgb, eta=eta, k=k, alpha=alpha, distribution=dist)
         self.visiting.discard(key)
         self.materials[key] = mat
         return mat
+
+    def complex_ior(self, node: Mapping, path: str, props: dict) -> tuple[tuple, tuple]:
+        """A conductor's (eta, k) per channel: from its named material, or eta (0) and k (1) as Mitsuba."""
+        w = lambda k: _prop_where(node, path, k)  # noqa: E731
+        name = self.value(node, path, props, "material", STRING, "none")
+        if "eta" in props or "k" in props or name == "none":
+            if name != "none":
+                self.fail(w("material"), "give either a material or eta and k, not both (as Mitsuba)")
+            for key in ("eta", "k"):
+                if key in props and _is_plugin(props[key]) and props[key]["type"] == "spectrum":
+                    self.fail(w(key), f"{key} as a spectrum is not supported (give rgb values or a named material)")
+            eta = self.value(node, path, props, "eta", COLOR, (0.0, 0.0, 0.0))
+            k = self.value(node, path, props, "k", COLOR, (1.0, 1.0, 1.0))
+            for key, v in (("eta", eta), ("k", k)):
+                self.in_range(w(key), key, list(v), min(v) >= 0.0, ">= 0 in every channel")
+            return tuple(eta), tuple(k)
+        if name not in CONDUCTOR_RGB:
+            close = [n for n in CONDUCTOR_RGB if n.lower() == name.lower()]
+            hint = f' (did you mean "{close[0]}"?)' if close else ""
+            self.fail(w("material"), f'unknown conductor material "{name}"{hint} (known: '
+                                     f'{", ".join(n for n in CONDUCTOR_RGB if not n.endswith("_palik"))}, ...)')
+        eta, k = CONDUCTOR_RGB[name]
+        return tuple(float(x) for x in eta), tuple(float(x) for x in k)
+
+    def roughness(self, node: Mapping, path: str, props: dict) -> float:
+        """An isotropic microfacet alpha (0.1 by default)."""
+        w = lambda k: _prop_where(node, path, k)  # noqa: E731
+        if "alpha" in props and ("alpha_u" in props or "alpha_v" in props):
+            self.fail(w("alpha"), "give alpha or alpha_u and alpha_v, not both")
+        if "alpha_u" in props or "alpha_v" in props:
+            if "alpha_u" not in props or "alpha_v" not in props:
+                self.fail(w("alpha_u" if "alpha_u" in props else "alpha_v"), "alpha_u and alpha_v go together")
+            au = self.value(node, path, props, "alpha_u", FLOAT)
+            av = self.value(node, path, props, "alpha_v", FLOAT)
+            if au != av:
+                self.fail(w("alpha_u"), f"anisotropic roughness (alpha_u {au} != alpha_v {av}) is not supported")
+            key, alpha = "alpha_u", au
+        else:
+            key, alpha = "alpha", self.value(node, path, props, "alpha", FLOAT, 0.1)
+        self.in_range(w(key), key, alpha, alpha >= 0.0, ">= 0")
+        return max(alpha, 1.0e-4)  # Mitsuba's floor
 
     def reflectance(self, where: str, key: str, rgb: tuple) -> tuple:
         if not all(0.0 <= c <= 1.0 for c in rgb):
@@ -809,6 +936,32 @@ class _Builder:
                                           normal=normal / np.linalg.norm(normal), radiance=radiance))
             mesh.light = len(scene.lights) - 1
         scene.meshes.append(mesh)
+
+    def envmap(self, node: Mapping, path: str, props: dict) -> EnvMap:
+        w = lambda k: _prop_where(node, path, k)  # noqa: E731
+        filename = self.value(node, path, props, "filename", STRING)
+        if filename is None:
+            self.fail(_where(node, path), 'envmap needs "filename"')
+        scale = self.value(node, path, props, "scale", FLOAT, 1.0)
+        self.in_range(w("scale"), "scale", scale, scale >= 0.0, ">= 0")
+        self.value(node, path, props, "mis_compensation", BOOL, False)
+        m = self.value(node, path, props, "to_world", TRANSFORM, np.eye(4))
+        lin = m[:3, :3]
+        if np.max(np.abs(lin.T @ lin - np.eye(3))) > 1e-3 or np.linalg.det(lin) < 0:
+            self.fail(w("to_world"), "an envmap's to_world may only rotate (Mitsuba maps unnormalised directions)")
+        if os.path.splitext(filename)[1].lower() not in (".exr", ".png"):
+            self.fail(w("filename"), f'envmap "{filename}": only OpenEXR (.exr) and PNG maps are supported')
+        file = resolve_file(filename, self.search_paths)
+        try:
+            img = imageio.read_image(file)
+        except ImageIOError as e:
+            self.fail(w("filename"), f'envmap "{filename}": {str(e).split(": ", 1)[-1]}')
+        if img.shape[0] < 2 or img.shape[1] < 1:
+            self.fail(w("filename"), f'envmap "{filename}" must be at least 1 x 2 pixels (got {img.shape[1]} x '
+                                     f'{img.shape[0]})')
+        if not np.all(np.isfinite(img)) or img.min() < 0:
+            self.fail(w("filename"), f'envmap "{filename}" has negative, NaN or infinite pixels')
+        return EnvMap(image=img, to_world=lin.copy(), scale=scale, filename=str(file))
 
     def mesh_file(self, node: Mapping, path: str, props: dict, m: np.ndarray, flip: bool):
         where = _where(node, path)

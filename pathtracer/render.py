@@ -231,7 +231,9 @@ class Renderer:
         self.max_depth = _check_int("max_depth", depth, -1)
         if self.max_depth == 0:
             raise RenderError("max_depth must be -1 (unlimited) or >= 1, got 0")
-        k = DEFAULT_LIGHT_SAMPLES if self.light_samples is None else self.light_samples
+        k = self.light_samples
+        if k is None:
+            k = self.scene.integrator.light_samples or DEFAULT_LIGHT_SAMPLES
         self.light_samples = _check_int("light_samples", k, 1)
         cpu = self.device == "cpu"
         threads = (os.cpu_count() or 1) if self.threads is None else self.threads
@@ -243,8 +245,9 @@ class Renderer:
         self.features = DeviceScene.features(self.scene, self.view, self.rr, self.sampler, self.count_rays,
                                              self.light_sampling, self.triangles)
         # the light tracer starts on parallelogram lights only and splats each light path into the one pixel it
-        # lands in (a box filter's film) through a pinhole
-        possible = (not (self.features.pixel_filter or self.features.thin_lens) and self.scene.only_rect_lights
+        # lands in (a box filter's film) through a pinhole; it knows diffuse surfaces and mirrors only
+        possible = (not (self.features.pixel_filter or self.features.thin_lens or self.features.other_materials)
+                    and self.scene.only_rect_lights
                     and self.features.mirrors and self.features.lights and self.view == "radiance"
                     and (self.max_depth < 0 or self.max_depth >= 3))
         wanted = DEFAULT_LIGHT_TRACING if self.light_tracing is None else bool(self.light_tracing)

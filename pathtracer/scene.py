@@ -11,26 +11,73 @@ from dataclasses import dataclass, field
 import numpy as np
 
 DIFFUSE = 0
-MIRROR = 1
-MATERIAL_KINDS = {"diffuse": DIFFUSE, "mirror": MIRROR}
+MIRROR = 1  # Mitsuba's conductor with material "none": reflectance 1 at every angle
+DIELECTRIC = 2
+THIN_DIELECTRIC = 3
+CONDUCTOR = 4  # smooth, with a complex index of refraction
+PLASTIC = 5
+ROUGH_CONDUCTOR = 6
+MATERIAL_KINDS = {"diffuse": DIFFUSE, "mirror": MIRROR, "dielectric": DIELECTRIC, "thindielectric": THIN_DIELECTRIC,
+                  "conductor": CONDUCTOR, "plastic": PLASTIC, "roughconductor": ROUGH_CONDUCTOR}
+DELTA_KINDS = ("mirror", "dielectric", "thindielectric", "conductor")  # no lobe that next-event estimation sees
 
 
 @dataclass(frozen=True)
 class Material:
-    """A BSDF: ``diffuse`` (Lambertian, albedo ``rgb``) or ``mirror`` (perfect reflection scaled by ``rgb``).
+    """A BSDF, as Mitsuba's plugin of the same name (docs/mitsuba_semantics/study_bsdfs.md):
+
+    - ``diffuse``: Lambertian, albedo ``rgb``;
+    - ``mirror``: perfect reflection scaled by ``rgb`` (Mitsuba's conductor with material "none");
+    - ``dielectric`` / ``thindielectric``: smooth glass of relative index ``eta[0]`` (interior over exterior),
+      ``rgb`` scaling reflection and ``rgb2`` transmission; two-sided by nature;
+    - ``conductor`` / ``roughconductor``: complex index ``eta + i k`` per channel, ``rgb`` the
+      specular_reflectance; the rough one with microfacet ``distribution`` of roughness ``alpha``;
+    - ``plastic``: a diffuse base ``rgb`` under a smooth dielectric coat of index ``eta[0]``, whose reflection
+      ``rgb2`` scales.
 
     One-sided materials reflect only on their front side (Mitsuba: the shading normal's side; the loader winds
-    rectangles and cubes so that the face normal agrees);
-    ``twosided`` ones on both.
+    rectangles and cubes so that the face normal agrees); ``twosided`` ones on both.
     """
 
     kind: str
     rgb: tuple[float, float, float]
     twosided: bool = False
+    rgb2: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    eta: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    k: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    alpha: float = 0.0
+    distribution: str = "beckmann"
+    nonlinear: bool = False
 
     @property
     def code(self) -> int:
         return MATERIAL_KINDS[self.kind]
+
+    @property
+    def is_twosided(self) -> bool:
+        """Does it scatter light arriving on either side (glass always does)?"""
+        return self.twosided or self.kind in ("dielectric", "thindielectric")
+
+    @property
+    def specular_sampling_weight(self) -> float:
+        """Plastic's probability scale for picking the coat's reflection (Mitsuba: s_mean / (d_mean + s_mean))."""
+        s = sum(self.rgb2) / 3.0
+        return s / (sum(self.rgb) / 3.0 + s)
+
+    @property
+    def fdr_int(self) -> float:
+        """Plastic's internal diffuse Fresnel reflectance, Mitsuba's fresnel_diffuse_reflectance(1 / eta)."""
+        return fresnel_diffuse_reflectance(1.0 / self.eta[0])
+
+
+def fresnel_diffuse_reflectance(eta: float) -> float:
+    """Hemispherical average of a dielectric's Fresnel reflectance, Mitsuba's fits (Egan and Hilgeman below 1,
+    d'Eon and Irving above)."""
+    inv = 1.0 / eta
+    if eta < 1.0:
+        return 0.0636 * inv + eta * (eta * -1.4399 + 0.7099) + 0.6681
+    c = (0.919317, -3.4793, 6.75335, -7.80989, 4.98554, -1.36881)
+    return sum(ci * inv**i for i, ci in enumerate(c))
 
 
 DEFAULT_MATERIAL = Material("diffuse", (0.5, 0.5, 0.5))  # Mitsuba's bsdf for a shape that names none
@@ -195,16 +242,32 @@ class DirectionalLight:
 
 
 @dataclass
+class EnvMap:
+    """Mitsuba's ``envmap``: linear RGB ``image`` (H, W, 3) in latitude-longitude layout (kernels/envmap.py), its
+    frame ``to_world`` (3x3: directions) and a radiance ``scale``."""
+
+    image: np.ndarray
+    to_world: np.ndarray
+    scale: float = 1.0
+    filename: str = ""
+
+
+@dataclass
 class Integrator:
-    """Mitsuba's ``path`` integrator parameters.
+    """Mitsuba's ``path`` integrator parameters (its ``direct`` is ``path`` with max_depth 2: the same paths and
+    MIS, equal in expectation).
 
     max_depth: longest path in segments; -1 unlimited, 1 = emitters seen directly, 2 = direct lighting.
     rr_depth: depth at which throughput-based Russian roulette starts.
+    light_samples: next-event samples per light the file asks for (``direct``'s emitter_samples), None: the
+    renderer's default.
     """
 
     max_depth: int = -1
     rr_depth: int = 5
     hide_emitters: bool = False
+    kind: str = "path"
+    light_samples: int | None = None
 
 
 @dataclass
@@ -225,6 +288,7 @@ class Scene:
     spot_lights: list[SpotLight] = field(default_factory=list)
     directional_lights: list[DirectionalLight] = field(default_factory=list)
     environment: tuple[float, float, float] | None = None  # Mitsuba's ``constant`` emitter: radiance from every direction
+    envmap: EnvMap | None = None  # Mitsuba's ``envmap`` emitter (at most one environment: this or ``environment``)
     source: str = "<scene>"
     rfilter: PixelFilter = field(default_factory=PixelFilter)  # the loader gives Mitsuba's default, gaussian
     sample_border: bool = False  # Mitsuba's film option: sample ceil(radius - 0.5) pixels beyond the film's edges
@@ -241,7 +305,7 @@ class Scene:
     def only_rect_lights(self) -> bool:
         """Are the parallelogram lights (``lights``) the only emitters?"""
         return not (self.sphere_lights or self.mesh_lights or self.point_lights or self.spot_lights
-                    or self.directional_lights or self.environment is not None)
+                    or self.directional_lights or self.environment is not None or self.envmap is not None)
 
     @property
     def triangle_count(self) -> int:
@@ -251,6 +315,13 @@ class Scene:
     def has_mirror(self) -> bool:
         used = {s.material for s in self.spheres} | {m.material for m in self.meshes}
         return any(self.materials[i].kind == "mirror" for i in used)
+
+    @property
+    def has_delta_bsdf(self) -> bool:
+        """Is any surface a mirror, glass or a smooth conductor (caustics behind it are found by BSDF sampling
+        alone)?"""
+        used = {s.material for s in self.spheres} | {m.material for m in self.meshes}
+        return any(self.materials[i].kind in DELTA_KINDS for i in used)
 
     @property
     def has_smooth_normals(self) -> bool:

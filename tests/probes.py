@@ -9,6 +9,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from kernels.bsdfs import (fresnel_conductor, fresnel_dielectric, microfacet_d, plastic_diffuse_f, rough_conductor_f,
+                           rough_conductor_pdf, sample_microfacet)
 from kernels.camera import camera_ray
 from kernels.film import filter_offset
 from kernels.lights import sample_sphere_cone, sample_triangle_light, spot_falloff
@@ -354,3 +356,33 @@ def probe_lights(x: wp.vec3, c: wp.vec3, r: float, us: wp.array(dtype=wp.vec2), 
                               0.5, us[i][0], us[i][1])
     tri_p[i] = t.p
     picked[i] = pick_in_cdf(cdf, 1, 3, us[i][0])
+
+
+@wp.kernel(enable_backward=False)
+def probe_microfacet(wi: wp.vec3, alpha: float, dist: int, eta: wp.vec3, k: wp.vec3, us: wp.array(dtype=wp.vec2),
+                     dirs: wp.array(dtype=wp.vec3), m_out: wp.array(dtype=wp.vec3), sample_w: wp.array(dtype=wp.vec3),
+                     f_cos: wp.array(dtype=wp.vec3), pdf: wp.array(dtype=float), d_cos: wp.array(dtype=float)):
+    """Per thread: a sampled normal and its reflection's weight f cos / pdf; and, at a given direction, f cos, the
+    sampler's density and D(m) cos(m) (m = the direction itself, for normalisation checks)."""
+    i = wp.tid()
+    m = sample_microfacet(wi, alpha, dist, us[i][0], us[i][1])
+    m_out[i] = m
+    wo = 2.0 * wp.dot(wi, m) * m - wi
+    p = rough_conductor_pdf(wi, wo, alpha, dist)
+    if p > 0.0:
+        sample_w[i] = rough_conductor_f(wi, wo, alpha, dist, eta, k) * (wo[2] / p)
+    w = dirs[i]
+    f_cos[i] = rough_conductor_f(wi, w, alpha, dist, eta, k) * wp.max(w[2], 0.0)
+    pdf[i] = rough_conductor_pdf(wi, w, alpha, dist)
+    d_cos[i] = microfacet_d(w, alpha, dist) * wp.max(w[2], 0.0)
+
+
+@wp.kernel(enable_backward=False)
+def probe_fresnel(cos_i: wp.array(dtype=float), eta: float, ceta: wp.vec3, ck: wp.vec3, f_d: wp.array(dtype=wp.vec3),
+                  f_c: wp.array(dtype=wp.vec3), plastic: wp.array(dtype=wp.vec3)):
+    """Dielectric (F, cos_t, eta_ti), conductor reflectance and plastic's diffuse lobe (cos_o = cos_i)."""
+    i = wp.tid()
+    fr = fresnel_dielectric(cos_i[i], eta)
+    f_d[i] = wp.vec3(fr.F, fr.cos_t, fr.eta_ti)
+    f_c[i] = fresnel_conductor(cos_i[i], ceta, ck)
+    plastic[i] = plastic_diffuse_f(cos_i[i], cos_i[i], eta, wp.vec3(0.5), 0.5904789, 0)

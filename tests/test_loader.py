@@ -178,6 +178,42 @@ def test_bsdfs(tmp_path):
     assert len(s.materials) == 7  # shared materials are stored once
 
 
+def test_mitsuba_bsdfs_and_their_defaults(tmp_path):
+    body = """
+    <shape type="sphere"><bsdf type="dielectric"/></shape>
+    <shape type="sphere"><bsdf type="dielectric"><string name="int_ior" value="Water"/><float name="ext_ior" value="1.1"/>
+        <rgb name="specular_transmittance" value="0.5, 0.6, 0.7"/></bsdf></shape>
+    <shape type="sphere"><bsdf type="thindielectric"><float name="int_ior" value="1.7"/></bsdf></shape>
+    <shape type="sphere"><bsdf type="conductor"><string name="material" value="Au"/></bsdf></shape>
+    <shape type="sphere"><bsdf type="conductor"><float name="eta" value="1.5"/></bsdf></shape>
+    <shape type="sphere"><bsdf type="roughconductor"/></shape>
+    <shape type="sphere"><bsdf type="roughconductor"><string name="distribution" value="ggx"/>
+        <float name="alpha_u" value="0.3"/><float name="alpha_v" value="0.3"/><boolean name="sample_visible" value="false"/>
+        </bsdf></shape>
+    <shape type="sphere"><bsdf type="plastic"/></shape>
+    <shape type="sphere"><bsdf type="twosided"><bsdf type="plastic"><boolean name="nonlinear" value="true"/>
+        <rgb name="specular_reflectance" value="0.5"/></bsdf></bsdf></shape>
+    """
+    s = load_xml(tmp_path, body)
+    got = [s.materials[sp.material] for sp in s.spheres]
+    bk7 = 1.5046 / 1.000277  # Mitsuba's defaults: int_ior "bk7", ext_ior "air"
+    au = ((0.143036, 0.3753071, 1.442045), (3.982997, 2.385556, 1.603359))  # Mitsuba 3.9.1's RGB gold
+    assert got == [
+        Material("dielectric", (1.0,) * 3, eta=(bk7,) * 3),
+        Material("dielectric", (1.0,) * 3, rgb2=(0.5, 0.6, 0.7), eta=(1.333 / 1.1,) * 3),
+        Material("thindielectric", (1.0,) * 3, eta=(1.7 / 1.000277,) * 3),
+        Material("conductor", (1.0,) * 3, eta=au[0], k=au[1]),
+        Material("conductor", (1.0,) * 3, eta=(1.5,) * 3, k=(1.0,) * 3),  # k defaults to 1 when eta is given
+        Material("roughconductor", (1.0,) * 3, eta=(0.0,) * 3, k=(1.0,) * 3, alpha=0.1, distribution="beckmann"),
+        Material("roughconductor", (1.0,) * 3, eta=(0.0,) * 3, k=(1.0,) * 3, alpha=0.3, distribution="ggx"),
+        Material("plastic", (0.5,) * 3, eta=(1.49 / 1.000277,) * 3),
+        Material("plastic", (0.5,) * 3, twosided=True, rgb2=(0.5,) * 3, eta=(1.49 / 1.000277,) * 3, nonlinear=True),
+    ]
+    assert got[0].is_twosided and not got[3].is_twosided  # glass scatters on both sides
+    assert got[7].fdr_int == pytest.approx(0.590479, abs=1e-6)  # Mitsuba's value for its default plastic
+    assert got[7].specular_sampling_weight == pytest.approx(2.0 / 3.0)
+
+
 def test_sphere_center_radius_and_to_world_compose_as_mitsuba(tmp_path):
     body = """<shape type="sphere"><point name="center" x="1" y="0" z="0"/><float name="radius" value="2"/>
         <transform name="to_world"><rotate z="1" angle="90"/><scale value="3"/><translate y="5"/></transform>
@@ -581,7 +617,7 @@ BAD_XML = [
     ('<shape type="sphere"><emitter type="point"/></shape>', '<emitter type="point">',
      "a shape can only hold an area emitter (a point emitter goes at scene level)"),
     ('<emitter type="constant"/><emitter type="constant"/>', '<emitter type="constant">',
-     "only one environment emitter (constant) is allowed per scene"),
+     "only one environment emitter (constant or envmap) is allowed per scene"),
     ('<emitter type="point"><point name="position" value="0, 0, 0"/><transform name="to_world"><translate x="1"/>'
      '</transform></emitter>', '<point name="position">', 'give "position" or "to_world", not both'),
     ('<emitter type="spot"><float name="cutoff_angle" value="0"/></emitter>', '<float name="cutoff_angle">',
@@ -594,8 +630,21 @@ BAD_XML = [
      "intensity must be >= 0"),
     ('<emitter type="area" id="e"/><shape type="sphere"><ref id="e"/></shape><shape type="sphere"><ref id="e"/>'
      '</shape>', '<emitter type="area" id="e">', "an area emitter can be attached to one shape only"),
+    ('<shape type="rectangle"><emitter type="projector"/></shape>', '<emitter type="projector">',
+     'emitter type "projector" is not supported (supported: area, constant, directional, envmap, point, spot)'),
     ('<shape type="rectangle"><emitter type="envmap"/></shape>', '<emitter type="envmap">',
-     'emitter type "envmap" is not supported (supported: area, constant, directional, point, spot)'),
+     "a shape can only hold an area emitter"),
+    ('<emitter type="envmap"/>', '<emitter type="envmap">', 'envmap needs "filename"'),
+    ('<emitter type="envmap"><string name="filename" value="nope.exr"/></emitter>', '<string name="filename">',
+     'envmap "nope.exr": cannot read'),
+    ('<emitter type="envmap"><string name="filename" value="sky.hdr"/></emitter>', '<string name="filename">',
+     "only OpenEXR (.exr) and PNG maps are supported"),
+    ('<emitter type="envmap"><string name="filename" value="a.exr"/><float name="scale" value="-1"/></emitter>',
+     '<float name="scale">', "scale must be >= 0"),
+    ('<emitter type="envmap"><string name="filename" value="a.exr"/><transform name="to_world"><scale value="2"/>'
+     '</transform></emitter>', '<transform name="to_world">', "may only rotate"),
+    ('<emitter type="constant"/><emitter type="envmap"><string name="filename" value="a.exr"/></emitter>',
+     '<emitter type="envmap">', "only one environment emitter"),
     ('<shape type="rectangle"><emitter type="area"><rgb name="radiance" value="-1 1 1"/></emitter></shape>',
      '<rgb name="radiance">', "radiance must be >= 0"),
     ('<shape type="rectangle"><emitter type="area"/><emitter type="area"/></shape>', '<emitter type="area">',
@@ -646,8 +695,34 @@ BAD_XML = [
      '<bsdf type="diffuse" id="a">', 'duplicate id "a"'),
     ('<bsdf type="twosided" id="t"><ref id="t"/></bsdf>', '<bsdf type="twosided" id="t">', "cannot contain itself"),
     ('<bsdf type="sphere"/>', '<bsdf type="sphere">', 'bsdf type "sphere" is not supported (supported: conductor, '
-                                                      'diffuse, twosided)'),
-    ('<bsdf type="roughconductor"/>', '<bsdf type="roughconductor">', 'bsdf type "roughconductor" is not supported'),
+                                                      'dielectric, diffuse, plastic, roughconductor'),
+    ('<bsdf type="roughdielectric"/>', '<bsdf type="roughdielectric">', 'bsdf type "roughdielectric" is not supported'),
+    ('<bsdf type="roughconductor"><float name="alpha" value="-0.1"/></bsdf>', '<float name="alpha">',
+     "alpha must be >= 0"),
+    ('<bsdf type="roughconductor"><float name="alpha_u" value="0.1"/><float name="alpha_v" value="0.3"/></bsdf>',
+     '<float name="alpha_u">', "anisotropic roughness"),
+    ('<bsdf type="roughconductor"><float name="alpha_u" value="0.1"/></bsdf>', '<float name="alpha_u">',
+     "alpha_u and alpha_v go together"),
+    ('<bsdf type="roughconductor"><string name="distribution" value="phong"/></bsdf>', '<string name="distribution">',
+     'unknown distribution "phong" (supported: beckmann, ggx)'),
+    ('<bsdf type="roughconductor"><texture name="alpha" type="checkerboard"/></bsdf>', '<texture',
+     "not supported"),
+    ('<bsdf type="conductor"><string name="material" value="Unobtainium"/></bsdf>', '<string name="material">',
+     'unknown conductor material "Unobtainium"'),
+    ('<bsdf type="conductor"><string name="material" value="au"/></bsdf>', '<string name="material">',
+     'did you mean "Au"?'),
+    ('<bsdf type="conductor"><string name="material" value="Au"/><float name="eta" value="1"/></bsdf>',
+     '<string name="material">', "give either a material or eta and k, not both"),
+    ('<bsdf type="conductor"><rgb name="k" value="-1 1 1"/></bsdf>', '<rgb name="k">', "k must be >= 0"),
+    ('<bsdf type="dielectric"><string name="int_ior" value="glass"/></bsdf>', '<string name="int_ior">',
+     'unknown int_ior "glass" (known: vacuum'),
+    ('<bsdf type="dielectric"><float name="ext_ior" value="-1"/></bsdf>', '<float name="ext_ior">', "ext_ior must be > 0"),
+    ('<bsdf type="thindielectric"><rgb name="specular_transmittance" value="2"/></bsdf>',
+     '<rgb name="specular_transmittance">', "must lie in [0, 1]"),
+    ('<bsdf type="plastic"><float name="int_ior" value="1.000277"/></bsdf>', '<float name="int_ior">',
+     "plastic needs int_ior and ext_ior to differ"),
+    ('<bsdf type="plastic"><float name="alpha" value="0.1"/></bsdf>', '<bsdf type="plastic">',
+     'property "alpha" is not supported'),
     ('<bsdf type="diffuse"><rgb name="reflectance" value="1.5 0 0"/></bsdf>', '<rgb name="reflectance">',
      "reflectance must lie in [0, 1]"),
     ('<bsdf type="diffuse"><rgb name="reflectance" value="1 2"/></bsdf>', '<rgb name="reflectance">',
@@ -657,10 +732,6 @@ BAD_XML = [
     ('<bsdf type="diffuse"><float name="reflectance" value="0.5"/><float name="reflectance" value="0.5"/></bsdf>',
      '<float name="reflectance">', '"reflectance" is given twice'),
     ('<bsdf type="diffuse"><bsdf type="diffuse"/></bsdf>', '<bsdf type="diffuse">', "a bsdf cannot appear inside"),
-    ('<bsdf type="conductor"><string name="material" value="Au"/></bsdf>', '<string name="material">',
-     'conductor material "Au" is not supported (supported: none'),
-    ('<bsdf type="conductor"><float name="eta" value="1.5"/></bsdf>', '<bsdf type="conductor">',
-     'property "eta" is not supported'),
     ('<bsdf type="twosided"/>', '<bsdf type="twosided">', "twosided needs one nested bsdf"),
     ('<bsdf type="twosided"><bsdf type="diffuse"/><bsdf type="conductor"/></bsdf>', '<bsdf type="conductor">',
      "two different bsdfs"),
@@ -668,7 +739,13 @@ BAD_XML = [
      "cannot be nested in a twosided"),
     ('<film type="hdrfilm"/>', '<film type="hdrfilm">', "must be nested in the sensor"),
     ('<integrator type="volpath"/>', '<integrator type="volpath">', 'integrator type "volpath" is not supported '
-                                                                   '(supported: path)'),
+                                                                   '(supported: direct, path)'),
+    ('<integrator type="direct"><integer name="emitter_samples" value="0"/></integrator>',
+     '<integer name="emitter_samples">', "emitter_samples must be > 0"),
+    ('<integrator type="direct"><integer name="shading_samples" value="2"/><integer name="bsdf_samples" value="1"/>'
+     '</integrator>', '<integer name="shading_samples">', "not both"),
+    ('<integrator type="direct"><boolean name="hide_emitters" value="true"/></integrator>',
+     '<boolean name="hide_emitters">', "not supported for direct"),
     ('<integrator type="path"/><integrator type="path"/>', '<integrator type="path">', "only one integrator"),
     ('<integrator type="path"><integer name="max_depth" value="-2"/></integrator>', '<integer name="max_depth">',
      "max_depth must be -1 (unlimited) or >= 0"),

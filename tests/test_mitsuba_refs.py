@@ -84,9 +84,12 @@ def test_agrees_with_mitsuba_reference(device, name, light_tracing, triangles):
     n_summed = META["spp"] // META["batches"]
     tol = 1e-5 * (1 + np.abs(ref[~noisy])) + n_summed * 2.0**-24 * np.abs(ref[~noisy])
     assert np.all(np.abs(diff[~noisy]) <= tol), name
-    t = diff[noisy] / np.sqrt(var_sum[noisy])
+    # near-noiseless pixels (a smooth metal reflecting the constant sky) carry the same rounding bound: it is a
+    # systematic error of the reference that its variance does not see
+    rounding = 1e-5 * (1 + np.abs(ref)) + n_summed * 2.0**-24 * np.abs(ref)
+    t = diff[noisy] / np.sqrt(var_sum[noisy] + rounding[noisy] ** 2)
     pass_rate = float(np.mean(np.abs(t) <= T_MAX))
-    heavy_tailed = scene.has_mirror and (depth == -1 or depth > 2)  # light tracing or not: the reference's are
+    heavy_tailed = scene.has_delta_bsdf and (depth == -1 or depth > 2)  # light tracing or not: the reference's are
     # a wide filter's tails are rare events for filter importance sampling (a pixel 1.4 px from a light's edge sees
     # it once in ~1e6 samples: 2048 samples mostly miss it, and the batch variance cannot see what they missed);
     # Mitsuba splats every sample with a tiny weight there. The image-wide checks decide (a box filter instead of
