@@ -176,3 +176,34 @@ def plastic_diffuse_f(cos_i: float, cos_o: float, eta: float, diffuse: wp.vec3, 
         return wp.vec3(diffuse[0] / (1.0 - diffuse[0] * fdr_int), diffuse[1] / (1.0 - diffuse[1] * fdr_int),
                        diffuse[2] / (1.0 - diffuse[2] * fdr_int)) * scale
     return diffuse * (scale / (1.0 - fdr_int))
+
+
+@wp.func
+def rough_plastic_f(wi: wp.vec3, wo: wp.vec3, alpha: float, dist: int, eta: float, diffuse: wp.vec3,
+                    specular: wp.vec3, internal: float, nonlinear: int, t_i: float, t_o: float) -> wp.vec3:
+    """BSDF value (without the cosine) of Mitsuba's roughplastic: the coat's microfacet reflection F D G / (4 cos_i
+    cos_o) plus the base seen through it, R / (1 - R_int) t_i t_o / (eta^2 pi), with t the coat's tabulated
+    transmittance at each direction and R_int its internal reflectance."""
+    if wi[2] <= 0.0 or wo[2] <= 0.0:
+        return wp.vec3(0.0)
+    h = wp.normalize(wi + wo)
+    d = microfacet_d(h, alpha, dist)
+    f = fresnel_dielectric(wp.dot(wi, h), eta).F
+    g = smith_g1(wi, h, alpha, dist) * smith_g1(wo, h, alpha, dist)
+    coat = specular * (f * d * g / (4.0 * wi[2] * wo[2]))
+    scale = t_i * t_o / (eta * eta * wp.pi)
+    if nonlinear != 0:
+        base = wp.vec3(diffuse[0] / (1.0 - diffuse[0] * internal), diffuse[1] / (1.0 - diffuse[1] * internal),
+                       diffuse[2] / (1.0 - diffuse[2] * internal))
+        return coat + base * scale
+    return coat + diffuse * (scale / (1.0 - internal))
+
+
+@wp.func
+def rough_plastic_pdf(wi: wp.vec3, wo: wp.vec3, alpha: float, dist: int, p_coat: float) -> float:
+    """Density of roughplastic's sampling: the coat's microfacet reflection with probability ``p_coat``, else
+    cosine-weighted."""
+    if wi[2] <= 0.0 or wo[2] <= 0.0:
+        return 0.0
+    h = wp.normalize(wi + wo)
+    return p_coat * microfacet_pdf(wi, h, alpha, dist) / (4.0 * wp.dot(wo, h)) + (1.0 - p_coat) * wo[2] / wp.pi

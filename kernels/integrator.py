@@ -33,6 +33,7 @@ from kernels.triangle import mesh_closest, mesh_occluded
 from kernels.triangle_warp import warp_mesh_closest, warp_mesh_occluded
 from kernels.offset import max_abs, offset_origin
 from kernels.quad import nearest_quad, occluded_quads, quad_hit
+from kernels.textures import surface_uv, texture_eval
 from kernels.sobol import independent4, padded_sobol4, replicate_seed
 from kernels.sampling import pick_in_cdf, reflect, sample_cosine_around, sample_parallelogram
 from kernels.sphrect import sample_spherical_rectangle
@@ -93,17 +94,20 @@ class Features:
     directional_lights: bool = False
     environment: bool = False  # Mitsuba's constant emitter
     envmap: bool = False  # Mitsuba's envmap (kernels/envmap.py)
+    textures: bool = False  # reflectances given by textures (kernels/textures.py)
     # BSDFs other than diffuse and mirror (kernels/materials.py), each compiled in only where the scene has one
     dielectrics: bool = False
     thin_dielectrics: bool = False
     conductors: bool = False
     plastics: bool = False
     rough_conductors: bool = False
+    rough_plastics: bool = False
 
     @property
     def other_materials(self) -> bool:
         """Any BSDF but diffuse and mirror?"""
-        return self.dielectrics or self.thin_dielectrics or self.conductors or self.plastics or self.rough_conductors
+        return (self.dielectrics or self.thin_dielectrics or self.conductors or self.plastics or self.rough_conductors
+                or self.rough_plastics)
 
 
 @wp.struct
@@ -228,22 +232,24 @@ def make_render_kernel(features: Features):
     OTHER_MATERIALS = features.other_materials
     DELTA_MATERIALS = features.dielectrics or features.thin_dielectrics or features.conductors  # no NEE at all
     # next-event estimation weighs each light sample by the BSDF towards it (diffuse alone: by albedo / pi, once)
-    BSDF_NEE = features.plastics or features.rough_conductors
-    MIS = features.rough_conductors  # glossy lobes: light and BSDF samples weighed by the power heuristic
+    BSDF_NEE = features.plastics or features.rough_conductors or features.rough_plastics
+    MIS = features.rough_conductors or features.rough_plastics  # glossy lobes: light and BSDF samples weighed by
+    # the power heuristic
     GLASS = features.dielectrics
+    TEXTURES = features.textures
 
     trace, occluded = make_tracers(features)
     sample_bsdf, eval_nee = make_materials(features)
 
     @wp.func
-    def nee_weight(scene: SceneData, params: PassParams, mat: int, kind: int, d: wp.vec3, ns: wp.vec3, w: wp.vec3,
-                   cos_x: float, g: float, delta: bool) -> wp.vec3:
+    def nee_weight(scene: SceneData, params: PassParams, mat: int, kind: int, rgb: wp.vec3, d: wp.vec3, ns: wp.vec3,
+                   w: wp.vec3, cos_x: float, g: float, delta: bool) -> wp.vec3:
         """What a light sample along ``w`` with cos_x / pdf = ``g`` is multiplied by besides Le g / K: the BSDF
         value and MIS weight where the scene has materials that need them, else 1 (diffuse surfaces multiply by
         albedo / pi once, at the end). ``delta``: a point or direction, which BSDF sampling never finds."""
         if wp.static(not BSDF_NEE):
             return wp.vec3(1.0)
-        ev = eval_nee(scene, mat, kind, d, ns, w)
+        ev = eval_nee(scene, mat, kind, rgb, d, ns, w)
         if wp.static(MIS):
             if ev.pdf > 0.0 and not delta and g > 0.0:
                 p_light = float(params.light_samples) * cos_x / g
@@ -315,7 +321,7 @@ def make_render_kernel(features: Features):
 
     @wp.func
     def other_lights(scene: SceneData, params: PassParams, hit: Hit, ng: wp.vec3, ns: wp.vec3, mat: int, kind: int,
-                     d: wp.vec3, key: wp.vec3ui, dim: wp.uint32, depth: int) -> wp.vec3:
+                     rgb: wp.vec3, d: wp.vec3, key: wp.vec3ui, dim: wp.uint32, depth: int) -> wp.vec3:
         """Next-event estimation of every emitter but the parallelograms: the sum of Le cos_x / pdf over the samples
         that see their emitter (K per sphere, mesh light and environment; one per point, spot and directional)."""
         Ld = wp.vec3(0.0)
@@ -336,7 +342,7 @@ def make_render_kernel(features: Features):
                         cos_x = lit(scene, hit, ng, ns, es.p, es.n, max_abs(es.p) + r, w, False)
                         if cos_x > 0.0:
                             g = cos_x * es.inv_pdf
-                            nw = nee_weight(scene, params, mat, kind, d, ns, w, cos_x, g, False)
+                            nw = nee_weight(scene, params, mat, kind, rgb, d, ns, w, cos_x, g, False)
                             Ld += wp.cw_mul(scene.light_radiance[scene.num_lights + j], nw) * (g * inv_k)
         if wp.static(MESH_LIGHTS):
             for m in range(scene.num_mesh_lights):
@@ -373,7 +379,7 @@ def make_render_kernel(features: Features):
                         cos_x = lit(scene, hit, ng, ns, es.p, -ngy, y_scale, w, False)
                         if cos_x > 0.0:
                             g = cos_x * es.inv_pdf
-                            nw = nee_weight(scene, params, mat, kind, d, ns, w, cos_x, g, False)
+                            nw = nee_weight(scene, params, mat, kind, rgb, d, ns, w, cos_x, g, False)
                             Ld += wp.cw_mul(scene.light_radiance[scene.num_lights + scene.num_sphere_lights + m], nw) * (
                                 g * inv_k)
         if wp.static(POINT_LIGHTS):
@@ -386,7 +392,7 @@ def make_render_kernel(features: Features):
                 w = to_y / wp.sqrt(dist2)
                 cos_x = lit(scene, hit, ng, ns, y, wp.vec3(0.0), 0.0, w, False)
                 if cos_x > 0.0:
-                    nw = nee_weight(scene, params, mat, kind, d, ns, w, cos_x, 0.0, True)
+                    nw = nee_weight(scene, params, mat, kind, rgb, d, ns, w, cos_x, 0.0, True)
                     Ld += wp.cw_mul(scene.pl_intensity[j], nw) * (cos_x / dist2)
         if wp.static(SPOT_LIGHTS):
             for j in range(scene.num_spot_lights):
@@ -402,14 +408,14 @@ def make_render_kernel(features: Features):
                 if falloff > 0.0:  # no shadow ray outside the cone
                     cos_x = lit(scene, hit, ng, ns, y, wp.vec3(0.0), 0.0, w, False)
                     if cos_x > 0.0:
-                        nw = nee_weight(scene, params, mat, kind, d, ns, w, cos_x, 0.0, True)
+                        nw = nee_weight(scene, params, mat, kind, rgb, d, ns, w, cos_x, 0.0, True)
                         Ld += wp.cw_mul(scene.spot_intensity[j], nw) * (falloff * cos_x / dist2)
         if wp.static(DIRECTIONAL):
             for j in range(scene.num_directional_lights):
                 w = -scene.dl_direction[j]
                 cos_x = lit(scene, hit, ng, ns, hit.p, wp.vec3(0.0), 0.0, w, True)
                 if cos_x > 0.0:
-                    nw = nee_weight(scene, params, mat, kind, d, ns, w, cos_x, 0.0, True)
+                    nw = nee_weight(scene, params, mat, kind, rgb, d, ns, w, cos_x, 0.0, True)
                     Ld += wp.cw_mul(scene.dl_irradiance[j], nw) * cos_x
         if wp.static(ENVIRONMENT):
             # cosine-weighted directions: Le cos_x / pdf = pi Le (the bounce that follows never counts the sky)
@@ -419,7 +425,7 @@ def make_render_kernel(features: Features):
                 w = sample_cosine_around(ns, u[0], u[1])
                 cos_x = lit(scene, hit, ng, ns, hit.p, wp.vec3(0.0), 0.0, w, True)
                 if cos_x > 0.0:
-                    nw = nee_weight(scene, params, mat, kind, d, ns, w, cos_x, wp.pi, False)
+                    nw = nee_weight(scene, params, mat, kind, rgb, d, ns, w, cos_x, wp.pi, False)
                     Ld += wp.cw_mul(scene.env_radiance, nw) * (wp.pi * inv_k)
         if wp.static(ENVMAP):
             # directions drawn from the map's own distribution (luminance times sin theta)
@@ -432,7 +438,7 @@ def make_render_kernel(features: Features):
                 cos_x = lit(scene, hit, ng, ns, hit.p, wp.vec3(0.0), 0.0, es.d, True)
                 if cos_x > 0.0:
                     g = cos_x / es.pdf
-                    nw = nee_weight(scene, params, mat, kind, d, ns, es.d, cos_x, g, False)
+                    nw = nee_weight(scene, params, mat, kind, rgb, d, ns, es.d, cos_x, g, False)
                     Ld += wp.cw_mul(env_eval(scene, es.d), nw) * (g * inv_k)
         return Ld
 
@@ -540,6 +546,10 @@ def make_render_kernel(features: Features):
                 if wp.dot(ns, d) >= 0.0:
                     break  # the shading normal faces away from the viewer: no reflection, as in Mitsuba
                 albedo = scene.mat_rgb[mat]
+                if wp.static(TEXTURES):
+                    tex = scene.mat_texture[mat]
+                    if tex >= 0:
+                        albedo = texture_eval(scene, tex, surface_uv(scene, hit))
 
                 kind = int(MAT_DIFFUSE)
                 if wp.static(HAS_MIRROR or OTHER_MATERIALS):
@@ -564,7 +574,7 @@ def make_render_kernel(features: Features):
                     if wp.static(DELTA_MATERIALS):
                         u = wp.static(draw4)(key, dim, depth)
                         dim += wp.uint32(1)
-                        bs = sample_bsdf(scene, mat, kind, d, ns, front, u)
+                        bs = sample_bsdf(scene, mat, kind, albedo, d, ns, front, u)
                         wi = bs.wo
                         weight = bs.weight
                         transmit = bs.transmit
@@ -614,10 +624,10 @@ def make_render_kernel(features: Features):
                                         g = cos_x * omega
                                     else:
                                         g = cos_x * cos_y / dist2 * scene.light_area[l]
-                                    Ll += nee_weight(scene, params, mat, kind, d, ns, w, cos_x, g, False) * g
+                                    Ll += nee_weight(scene, params, mat, kind, albedo, d, ns, w, cos_x, g, False) * g
                             Ld += wp.cw_mul(scene.light_radiance[l], Ll / float(params.light_samples))
                     if wp.static(OTHER_LIGHTS):
-                        Ld += other_lights(scene, params, hit, ng, ns, mat, kind, d, key, dim, depth)
+                        Ld += other_lights(scene, params, hit, ng, ns, mat, kind, albedo, d, key, dim, depth)
                         # the dims other_lights drew: K per sphere light, mesh light and environment
                         dim += wp.uint32(params.light_samples * (scene.num_sphere_lights + scene.num_mesh_lights
                                                                  + wp.static(int(ENVIRONMENT or ENVMAP))))
@@ -637,7 +647,7 @@ def make_render_kernel(features: Features):
                             lt_owned = depth == 0
                     else:
                         if wp.static(BSDF_NEE):
-                            bs = sample_bsdf(scene, mat, kind, d, ns, front, u)
+                            bs = sample_bsdf(scene, mat, kind, albedo, d, ns, front, u)
                             wi = bs.wo
                             weight = bs.weight
                             count_emission = bs.count_emission

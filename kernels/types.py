@@ -42,6 +42,7 @@ class SceneData:
     sphere_center: wp.array(dtype=wp.vec3)
     sphere_radius: wp.array(dtype=float)
     sphere_material: wp.array(dtype=wp.int32)
+    sphere_to_local: wp.array(dtype=wp.mat33)  # world -> the sphere's object frame (for texture coordinates)
     num_spheres: int
     quad_center: wp.array(dtype=wp.vec3d)  # analytic parallelograms (kernels/quad.py), float64
     quad_normal: wp.array(dtype=wp.vec3d)  # unit, the winding normal of the triangles the quad stands for
@@ -52,6 +53,7 @@ class SceneData:
     quad_scale: wp.array(dtype=float)  # largest absolute corner coordinate (for ray offsets)
     quad_material: wp.array(dtype=wp.int32)
     quad_light: wp.array(dtype=wp.int32)  # area light index, -1 if the quad does not emit
+    quad_uv: wp.array(dtype=wp.vec2)  # 3 per quad: uv = [0] + s [1] + r [2] (kernels/textures.py)
     num_quads: int
     quad_group_end: wp.array(dtype=wp.int32)  # > i: quad i starts a boxed group (one shape) ending before this
     quad_box_lo: wp.array(dtype=wp.vec3d)  # that group's bounding box, padded (set at group starts only)
@@ -64,6 +66,18 @@ class SceneData:
     mat_k: wp.array(dtype=wp.vec3)  # conductors' k
     mat_param: wp.array(dtype=wp.vec4)  # alpha, distribution (kernels/bsdfs.py), plastic's coat pick weight, fdr_int
     mat_nonlinear: wp.array(dtype=wp.int32)  # plastic's nonlinear flag
+    mat_table: wp.array(dtype=wp.int32)  # roughplastic: its first entry in rough_tables (64 per material)
+    rough_tables: wp.array(dtype=float)  # roughplastic's coat transmittance tables (kernels/materials.py)
+    mat_texture: wp.array(dtype=wp.int32)  # the texture that gives mat_rgb per point, -1 none (kernels/textures.py)
+    tex_kind: wp.array(dtype=wp.int32)  # 0 checkerboard, 1 bitmap
+    tex_uv_u: wp.array(dtype=wp.vec3)  # to_uv: u' = row_u . (u, v, 1)
+    tex_uv_v: wp.array(dtype=wp.vec3)
+    tex_color0: wp.array(dtype=wp.vec3)
+    tex_color1: wp.array(dtype=wp.vec3)
+    tex_start: wp.array(dtype=wp.int32)  # a bitmap's first texel in tex_texels (rows from the image's top)
+    tex_size: wp.array(dtype=wp.vec2i)  # width, height
+    tex_mode: wp.array(dtype=wp.vec2i)  # nearest (1) or bilinear (0); wrap: repeat 0, mirror 1, clamp 2
+    tex_texels: wp.array(dtype=wp.vec3)
     light_center: wp.array(dtype=wp.vec3)
     light_half_u: wp.array(dtype=wp.vec3)
     light_half_v: wp.array(dtype=wp.vec3)

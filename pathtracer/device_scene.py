@@ -15,6 +15,7 @@ from kernels.types import CameraData, SceneData
 from kernels.triangle import STACK_SIZE
 from pathtracer.bvh import BoxTree, WideTree, build_tree, collapse_wide, leaf_lanes
 from pathtracer.errors import RenderError
+from pathtracer.microfacet_tables import external_transmittance, internal_reflectance
 from pathtracer.rfilter import filter_cdf
 from pathtracer.scene import MIRROR, Scene, TriangleMesh
 
@@ -105,6 +106,7 @@ class Quad:
     material: int
     light: int
     group: int = 0  # the shape it comes from: the quads of one shape are consecutive and share a bounding box
+    uv: np.ndarray | None = None  # 3x2: texture coordinates uv = uv[0] + s uv[1] + r uv[2] (None: no uvs)
 
     def duals(self) -> tuple[np.ndarray, np.ndarray]:
         """(ustar, vstar): s = (p - center) . ustar, r = (p - center) . vstar for p on the plane."""
@@ -135,8 +137,14 @@ def mesh_quads(m: TriangleMesh) -> list[Quad] | None:
         len0 = float(np.linalg.norm(n0))
         if not (len0 > 0 and np.dot(n0, n1) > 0):
             return None
+        uv = None
+        if m.uvs is not None:  # the same affine map as the corners': a (-1, -1), b (1, -1), c (1, 1), d (-1, 1)
+            ta, tc = m.uvs[shared[0]], m.uvs[shared[1]]
+            tb = m.uvs[[i for i in f0 if i not in shared][0]]
+            td = m.uvs[[i for i in f1 if i not in shared][0]]
+            uv = np.array([(ta + tb + tc + td) / 4, 0.25 * ((tb - ta) + (tc - td)), 0.25 * ((td - ta) + (tc - tb))])
         q = Quad(center=corners.mean(axis=0), half_u=0.25 * ((b - a) + (c - d)), half_v=0.25 * ((d - a) + (c - b)),
-                 normal=n0 / len0, scale=scale, material=m.material, light=m.light)
+                 normal=n0 / len0, scale=scale, material=m.material, light=m.light, uv=uv)
         det = float(np.dot(q.normal, np.cross(q.half_u, q.half_v)))
         if not abs(det) > 1e-6 * float(np.linalg.norm(q.half_u) * np.linalg.norm(q.half_v)):
             return None
@@ -260,6 +268,8 @@ class DeviceScene:
         d.sphere_center = _vec3([s.center for s in scene.spheres], device)
         d.sphere_radius = _arr([s.radius for s in scene.spheres], wp.float32, device)
         d.sphere_material = _arr([s.material for s in scene.spheres], wp.int32, device)
+        rots = [np.linalg.inv(s.rotation) if s.rotation is not None else np.eye(3) for s in scene.spheres]
+        d.sphere_to_local = wp.array(np.array(rots, dtype=np.float32).reshape(-1, 3, 3), dtype=wp.mat33, device=device)
         d.num_spheres = len(scene.spheres)
 
         self.quads = quads
@@ -273,6 +283,8 @@ class DeviceScene:
         d.quad_scale = _arr([q.scale for q in quads], wp.float32, device)
         d.quad_material = _arr([q.material for q in quads], wp.int32, device)
         d.quad_light = _arr([q.light for q in quads], wp.int32, device)
+        uvs = np.array([q.uv if q.uv is not None else np.zeros((3, 2)) for q in quads], dtype=np.float32).reshape(-1, 2)
+        d.quad_uv = wp.array(uvs, dtype=wp.vec2, device=device)
         d.num_quads = len(quads)
         end, lo, hi = quad_groups(quads)
         d.quad_group_end = _arr(end, wp.int32, device)
@@ -289,10 +301,23 @@ class DeviceScene:
         d.mat_rgb2 = _vec3([m.rgb2 for m in scene.materials], device)
         d.mat_eta = _vec3([m.eta for m in scene.materials], device)
         d.mat_k = _vec3([m.k for m in scene.materials], device)
-        params = [[m.alpha, DISTRIBUTIONS[m.distribution], m.specular_sampling_weight if m.kind == "plastic" else 0.0,
-                   m.fdr_int if m.kind == "plastic" else 0.0] for m in scene.materials]
+        params = [[m.alpha, DISTRIBUTIONS[m.distribution],
+                   m.specular_sampling_weight if m.kind in ("plastic", "roughplastic") else 0.0,
+                   m.fdr_int if m.kind == "plastic" else (
+                       internal_reflectance(m.alpha, m.distribution, m.eta[0]) if m.kind == "roughplastic" else 0.0)]
+                  for m in scene.materials]
         d.mat_param = wp.array(np.array(params, dtype=np.float32).reshape(-1, 4), dtype=wp.vec4, device=device)
         d.mat_nonlinear = _arr([int(m.nonlinear) for m in scene.materials], wp.int32, device)
+        d.mat_texture = _arr([m.texture for m in scene.materials], wp.int32, device)
+        tables, starts = [], []
+        for m in scene.materials:
+            starts.append(64 * len(tables))
+            if m.kind == "roughplastic":
+                tables.append(external_transmittance(m.alpha, m.distribution, m.eta[0]))
+        d.mat_table = _arr(starts, wp.int32, device)
+        d.rough_tables = wp.array(np.concatenate(tables).astype(np.float32) if tables else np.zeros(0, np.float32),
+                                  dtype=wp.float32, device=device)
+        fill_textures(d, scene.textures, device)
 
         lights = scene.lights
         d.light_center = _vec3([l.center for l in lights], device)
@@ -387,6 +412,7 @@ class DeviceScene:
             conductors="conductor" in kinds,
             plastics="plastic" in kinds,
             rough_conductors="roughconductor" in kinds,
+            rough_plastics="roughplastic" in kinds,
             smooth_normals=any(m.normals is not None for m in tri),
             lights=len(scene.lights) > 0,
             quads=len(quads) > 0,
@@ -405,7 +431,33 @@ class DeviceScene:
             directional_lights=len(scene.directional_lights) > 0,
             environment=scene.environment is not None,
             envmap=scene.envmap is not None,
+            textures=any(scene.materials[i].texture >= 0 for i in used),
         )
+
+
+WRAPS = {"repeat": 0, "mirror": 1, "clamp": 2}
+
+
+def fill_textures(d: SceneData, textures: list, device) -> None:
+    """The textures' tables (kernels/textures.py): kind, uv transform, colours and the bitmaps' texels, all
+    bitmaps in one array."""
+    d.tex_kind = _arr([0 if t.kind == "checkerboard" else 1 for t in textures], wp.int32, device)
+    d.tex_uv_u = _vec3([t.to_uv[0] for t in textures], device)
+    d.tex_uv_v = _vec3([t.to_uv[1] for t in textures], device)
+    d.tex_color0 = _vec3([t.color0 for t in textures], device)
+    d.tex_color1 = _vec3([t.color1 for t in textures], device)
+    starts, sizes, modes, texels, n = [], [], [], [], 0
+    for t in textures:
+        img = t.image if t.image is not None else np.zeros((0, 0, 3), np.float32)
+        starts.append(n)
+        sizes.append((img.shape[1], img.shape[0]))
+        modes.append((int(t.filter == "nearest"), WRAPS[t.wrap]))
+        texels.append(img.reshape(-1, 3))
+        n += img.shape[0] * img.shape[1]
+    d.tex_start = _arr(starts, wp.int32, device)
+    d.tex_size = wp.array(np.array(sizes, dtype=np.int32).reshape(-1, 2), dtype=wp.vec2i, device=device)
+    d.tex_mode = wp.array(np.array(modes, dtype=np.int32).reshape(-1, 2), dtype=wp.vec2i, device=device)
+    d.tex_texels = _vec3(np.concatenate(texels) if texels else np.zeros((0, 3)), device)
 
 
 def envmap_cdfs(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

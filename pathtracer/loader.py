@@ -36,13 +36,21 @@ bsdf        dielectric   int_ior ("bk7"), ext_ior ("air"): a number or a name of
 bsdf        thindielectric  the same
 bsdf        plastic      diffuse_reflectance (0.5), specular_reflectance (1.0), int_ior
                          ("polypropylene"), ext_ior ("air"), nonlinear (false)
+bsdf        roughplastic the same, distribution (beckmann | ggx), alpha (0.1; >= 0; a number, as
+                         Mitsuba), sample_visible (noise only)
 bsdf        twosided     exactly one nested bsdf (one-sided ones then reflect on both sides)
+texture     checkerboard color0 (0.4), color1 (0.2), to_uv; on reflectance, diffuse_reflectance or
+                         specular_reflectance of spheres, rectangles and cubes (Mitsuba's uv)
+texture     bitmap       filename (OpenEXR, or PNG read as sRGB), filter_type (bilinear | nearest),
+                         wrap_mode (repeat | mirror | clamp), to_uv, format and accel (storage only);
+                         raw=true is refused; values in [0, 1]
 shape       sphere       center (0), radius (1; > 0), to_world (translation, rotation and uniform
                          scale only; no mirroring, which turns Mitsuba's sphere inside out);
                          Mitsuba composes to_world * translate(center) * scale(radius)
-shape       rectangle    to_world; [-1, 1]^2 at z = 0 with normal +z; the only shape that may hold
-                         an emitter
+shape       rectangle    to_world; [-1, 1]^2 at z = 0 with normal +z
 shape       cube         to_world; [-1, 1]^3, Mitsuba's 24 vertices and 12 outward triangles
+shape       serialized   filename (Mitsuba's compressed format, versions 3 and 4), shape_index (0),
+                         face_normals, to_world; normals as the file's, else recomputed as Mitsuba
 shape       obj, ply     filename (relative to the scene file; for load_dict, to the working
                          directory), face_normals (false), flip_tex_coords (no-op: no textures),
                          to_world
@@ -95,7 +103,7 @@ from .material_data import CONDUCTOR_RGB, IOR as IOR_TABLE
 from . import transform as tf
 from .errors import SceneError
 from .loader_xml import Point3, XmlDict, parse_file, resolve_file
-from .scene import (DEFAULT_MATERIAL, Camera, DirectionalLight, EnvMap, Integrator, Material, MeshLight, PixelFilter,
+from .scene import (DEFAULT_MATERIAL, Camera, DirectionalLight, EnvMap, Integrator, Texture, Material, MeshLight, PixelFilter,
                     PointLight, RectLight, Scene, Sphere, SphereLight, SpotLight, TriangleMesh)
 
 FLOAT, INT, BOOL, STRING, POINT, COLOR, TRANSFORM = "float", "integer", "boolean", "string", "point", "rgb", "transform"
@@ -141,7 +149,14 @@ PLUGINS = {
                                       "specular_transmittance": COLOR}),
     "plastic": Plugin("bsdf", {"diffuse_reflectance": COLOR, "specular_reflectance": COLOR, "int_ior": IOR,
                                "ext_ior": IOR, "nonlinear": BOOL}),
+    "roughplastic": Plugin("bsdf", {"diffuse_reflectance": COLOR, "specular_reflectance": COLOR, "int_ior": IOR,
+                                    "ext_ior": IOR, "nonlinear": BOOL, "distribution": STRING, "alpha": FLOAT,
+                                    "sample_visible": BOOL}),
     "twosided": Plugin("bsdf", {}, ("bsdf",)),
+    "checkerboard": Plugin("texture", {"color0": COLOR, "color1": COLOR, "to_uv": TRANSFORM}),
+    # format and accel only choose how Mitsuba stores and looks up the texels (the same values): accepted
+    "bitmap": Plugin("texture", {"filename": STRING, "filter_type": STRING, "wrap_mode": STRING, "raw": BOOL,
+                                 "to_uv": TRANSFORM, "format": STRING, "accel": BOOL}),
     "sphere": Plugin("shape", {"center": POINT, "radius": FLOAT, "to_world": TRANSFORM, "flip_normals": BOOL},
                      ("bsdf", "emitter")),
     "rectangle": Plugin("shape", {"to_world": TRANSFORM, "flip_normals": BOOL}, ("bsdf", "emitter")),
@@ -150,6 +165,8 @@ PLUGINS = {
                             "to_world": TRANSFORM, "flip_normals": BOOL}, ("bsdf", "emitter")),
     "ply": Plugin("shape", {"filename": STRING, "face_normals": BOOL, "flip_tex_coords": BOOL,
                             "to_world": TRANSFORM, "flip_normals": BOOL}, ("bsdf", "emitter")),
+    "serialized": Plugin("shape", {"filename": STRING, "shape_index": INT, "face_normals": BOOL,
+                                   "to_world": TRANSFORM, "flip_normals": BOOL}, ("bsdf", "emitter")),
     # sampling_weight only changes how often Mitsuba picks an emitter (noise, not the image): accepted
     "area": Plugin("emitter", {"radiance": COLOR, "sampling_weight": FLOAT}),
     "point": Plugin("emitter", {"intensity": COLOR, "position": POINT, "to_world": TRANSFORM,
@@ -299,6 +316,8 @@ class _Builder:
         self.search_paths = search_paths if search_paths is not None else [base_dir]
         self.ids: dict[str, tuple[Mapping, str]] = {}
         self.materials: dict[int, Material] = {}
+        self.textures: list[Texture] = []  # every texture a material uses (Scene.textures)
+        self.texture_nodes: dict[int, Texture] = {}
         self.visiting: set[int] = set()
         self.attached: set[int] = set()  # area emitters already attached to a shape
 
@@ -392,6 +411,8 @@ class _Builder:
             return default
         v = props[key]
         where = _prop_where(node, path, key)
+        if _is_plugin(v) and (_category(v) == "texture" or v["type"] == "ref"):
+            self.fail(where, f"{key}: a texture is not supported here (give a value)")
         if kind == FLOAT:
             if not _is_number(v):
                 self.fail(where, f"{key} must be a number (got {_show(v)})")
@@ -512,7 +533,7 @@ class _Builder:
             if cat in ("film", "sampler", "rfilter"):
                 parent = "film" if cat == "rfilter" else "sensor"
                 self.fail(_where(v, path), f"a {cat} must be nested in the {parent}")
-            self.spec(v, path, ("integrator", "sensor", "shape", "bsdf", "emitter"))
+            self.spec(v, path, ("integrator", "sensor", "shape", "bsdf", "emitter", "texture"))
             if cat == "emitter":
                 emitters.append((v, path))
             elif cat == "integrator":
@@ -521,6 +542,8 @@ class _Builder:
                 sensors.append((v, path))
             elif cat == "shape":
                 shapes.append((v, path, k))
+            elif cat == "texture":
+                self.texture(v, path)  # checked even when unused, as Mitsuba instantiates it
             else:
                 self.material(v, path)  # checked even when unused, as Mitsuba instantiates it
         if len(integrators) > 1:
@@ -771,43 +794,116 @@ class _Builder:
                 self.fail(_where(objs[0].node, objs[0].path), "a twosided bsdf cannot be nested in a twosided bsdf")
             mat = dataclasses.replace(inner, twosided=True)
         elif t == "diffuse":
-            rgb = self.value(node, path, props, "reflectance", COLOR, (0.5, 0.5, 0.5))
-            mat = Material("diffuse", self.reflectance(w("reflectance"), "reflectance", rgb))
-        elif t in ("dielectric", "thindielectric", "plastic"):
-            int_ior = self.value(node, path, props, "int_ior", IOR, IOR_TABLE["polypropylene" if t == "plastic" else "bk7"])
+            rgb, tex = self.colour_slot(node, path, props, "reflectance", (0.5, 0.5, 0.5))
+            mat = Material("diffuse", self.reflectance(w("reflectance"), "reflectance", rgb), texture=tex)
+        elif t in ("dielectric", "thindielectric", "plastic", "roughplastic"):
+            plastic = t in ("plastic", "roughplastic")
+            int_ior = self.value(node, path, props, "int_ior", IOR, IOR_TABLE["polypropylene" if plastic else "bk7"])
             ext_ior = self.value(node, path, props, "ext_ior", IOR, IOR_TABLE["air"])
-            if t == "plastic" and int_ior == ext_ior:
-                self.fail(w("int_ior"), "plastic needs int_ior and ext_ior to differ (Mitsuba refuses equal ones)")
+            if plastic and int_ior == ext_ior:
+                self.fail(w("int_ior"), f"{t} needs int_ior and ext_ior to differ (Mitsuba refuses equal ones)")
             eta = (int_ior / ext_ior,) * 3
-            spec = self.reflectance(w("specular_reflectance"), "specular_reflectance",
-                                    self.value(node, path, props, "specular_reflectance", COLOR, (1.0, 1.0, 1.0)))
-            if t == "plastic":
-                diffuse = self.reflectance(w("diffuse_reflectance"), "diffuse_reflectance",
-                                           self.value(node, path, props, "diffuse_reflectance", COLOR, (0.5, 0.5, 0.5)))
+            if plastic:
+                spec = self.reflectance(w("specular_reflectance"), "specular_reflectance",
+                                        self.value(node, path, props, "specular_reflectance", COLOR, (1.0, 1.0, 1.0)))
+                diffuse, tex = self.colour_slot(node, path, props, "diffuse_reflectance", (0.5, 0.5, 0.5))
+                diffuse = self.reflectance(w("diffuse_reflectance"), "diffuse_reflectance", diffuse)
                 nonlinear = self.value(node, path, props, "nonlinear", BOOL, False)
-                mat = Material("plastic", diffuse, rgb2=spec, eta=eta, nonlinear=nonlinear)
+                if t == "plastic":
+                    mat = Material("plastic", diffuse, rgb2=spec, eta=eta, nonlinear=nonlinear, texture=tex)
+                else:
+                    dist = self.value(node, path, props, "distribution", STRING, "beckmann")
+                    if dist not in ("beckmann", "ggx"):
+                        self.fail(w("distribution"), f'unknown distribution "{dist}" (supported: beckmann, ggx)')
+                    self.value(node, path, props, "sample_visible", BOOL, True)
+                    alpha = self.value(node, path, props, "alpha", FLOAT, 0.1)
+                    self.in_range(w("alpha"), "alpha", alpha, alpha >= 0.0, ">= 0")
+                    mat = Material("roughplastic", diffuse, rgb2=spec, eta=eta, nonlinear=nonlinear, texture=tex,
+                                   alpha=max(alpha, 1.0e-4), distribution=dist)
             else:
+                spec, tex = self.colour_slot(node, path, props, "specular_reflectance", (1.0, 1.0, 1.0))
+                spec = self.reflectance(w("specular_reflectance"), "specular_reflectance", spec)
                 trans = self.reflectance(w("specular_transmittance"), "specular_transmittance", self.value(
                     node, path, props, "specular_transmittance", COLOR, (1.0, 1.0, 1.0)))
-                mat = Material(t, spec, rgb2=trans, eta=eta)
+                mat = Material(t, spec, rgb2=trans, eta=eta, texture=tex)
         else:  # conductor, roughconductor
             eta, k = self.complex_ior(node, path, props)
-            rgb = self.reflectance(w("specular_reflectance"), "specular_reflectance",
-                                   self.value(node, path, props, "specular_reflectance", COLOR, (1.0, 1.0, 1.0)))
+            rgb, tex = self.colour_slot(node, path, props, "specular_reflectance", (1.0, 1.0, 1.0))
+            rgb = self.reflectance(w("specular_reflectance"), "specular_reflectance", rgb)
             if t == "conductor":
-                if eta == (0.0, 0.0, 0.0) and k == (1.0, 1.0, 1.0):
+                if eta == (0.0, 0.0, 0.0) and k == (1.0, 1.0, 1.0) and tex < 0:
                     mat = Material("mirror", rgb)  # Fresnel reflectance 1 at every angle
                 else:
-                    mat = Material("conductor", rgb, eta=eta, k=k)
+                    mat = Material("conductor", rgb, eta=eta, k=k, texture=tex)
             else:
                 dist = self.value(node, path, props, "distribution", STRING, "beckmann")
                 if dist not in ("beckmann", "ggx"):
                     self.fail(w("distribution"), f'unknown distribution "{dist}" (supported: beckmann, ggx)')
                 alpha = self.roughness(node, path, props)
-                mat = Material("roughconductor", rgb, eta=eta, k=k, alpha=alpha, distribution=dist)
+                mat = Material("roughconductor", rgb, eta=eta, k=k, alpha=alpha, distribution=dist, texture=tex)
         self.visiting.discard(key)
         self.materials[key] = mat
         return mat
+
+    def colour_slot(self, node: Mapping, path: str, props: dict, key: str, default: tuple) -> tuple[tuple, int]:
+        """A reflectance that may be a texture: (its rgb, or a texture's mean; the index in the scene's textures
+        or -1)."""
+        v = props.get(key)
+        where = _prop_where(node, path, key)
+        if _is_plugin(v) and v["type"] == "ref":
+            v, _ = self.resolve(v, where)
+        if not (_is_plugin(v) and _category(v) == "texture"):
+            return self.value(node, path, props, key, COLOR, default), -1
+        tex = self.texture(v, f"{path}[{key!r}]")
+        for i, t in enumerate(self.textures):
+            if t is tex:
+                return tex.mean(), i
+        self.textures.append(tex)
+        return tex.mean(), len(self.textures) - 1
+
+    def texture(self, node: Mapping, path: str) -> Texture:
+        key = id(node)
+        if key in self.texture_nodes:
+            return self.texture_nodes[key]
+        spec = self.spec(node, path, ("texture",))
+        props, _ = self.fields(node, path, spec)
+        w = lambda k: _prop_where(node, path, k)  # noqa: E731
+        m = self.value(node, path, props, "to_uv", TRANSFORM, np.eye(4))
+        # Mitsuba keeps the 2D part of a 4x4 to_uv: x and y rows and columns, and the translation
+        to_uv = np.array([[m[0, 0], m[0, 1], m[0, 3]], [m[1, 0], m[1, 1], m[1, 3]]])
+        if node["type"] == "checkerboard":
+            c0 = self.value(node, path, props, "color0", COLOR, (0.4, 0.4, 0.4))
+            c1 = self.value(node, path, props, "color1", COLOR, (0.2, 0.2, 0.2))
+            tex = Texture("checkerboard", to_uv=to_uv, color0=self.reflectance(w("color0"), "color0", c0),
+                          color1=self.reflectance(w("color1"), "color1", c1))
+        else:
+            filename = self.value(node, path, props, "filename", STRING)
+            if filename is None:
+                self.fail(_where(node, path), 'bitmap needs "filename"')
+            filt = self.value(node, path, props, "filter_type", STRING, "bilinear")
+            if filt not in ("bilinear", "nearest"):
+                self.fail(w("filter_type"), f'unknown filter_type "{filt}" (supported: bilinear, nearest)')
+            wrap = self.value(node, path, props, "wrap_mode", STRING, "repeat")
+            if wrap not in ("repeat", "mirror", "clamp"):
+                self.fail(w("wrap_mode"), f'unknown wrap_mode "{wrap}" (supported: repeat, mirror, clamp)')
+            if self.value(node, path, props, "raw", BOOL, False):
+                self.fail(w("raw"), "raw=true is not supported (8-bit images are read as sRGB, as Mitsuba's default)")
+            fmt = self.value(node, path, props, "format", STRING, "auto")
+            if fmt not in ("auto", "variant", "float16", "uint8"):
+                self.fail(w("format"), f'unknown format "{fmt}" (supported: auto, variant, float16, uint8)')
+            self.value(node, path, props, "accel", BOOL, True)
+            if os.path.splitext(filename)[1].lower() not in (".exr", ".png"):
+                self.fail(w("filename"), f'bitmap "{filename}": only OpenEXR (.exr) and PNG images are supported')
+            file = resolve_file(filename, self.search_paths)
+            try:
+                img = imageio.read_image(file)
+            except ImageIOError as e:
+                self.fail(w("filename"), f'bitmap "{filename}": {str(e).split(": ", 1)[-1]}')
+            if not np.all(np.isfinite(img)) or img.min() < 0 or img.max() > 1:
+                self.fail(w("filename"), f'bitmap "{filename}": a reflectance texture must lie in [0, 1]')
+            tex = Texture("bitmap", to_uv=to_uv, image=img, filter=filt, wrap=wrap, filename=str(file))
+        self.texture_nodes[key] = tex
+        return tex
 
     def complex_ior(self, node: Mapping, path: str, props: dict) -> tuple[tuple, tuple]:
         """A conductor's (eta, k) per channel: from its named material, or eta (0) and k (1) as Mitsuba."""
@@ -886,6 +982,10 @@ class _Builder:
         else:
             material = DEFAULT_MATERIAL
         mat_index = scene.add_material(material)
+        scene.textures = self.textures
+        if material.texture >= 0 and not (t in ("sphere", "rectangle") or (t == "cube" and radiance is None)):
+            self.fail(where, f"a textured bsdf on a {t if t != 'cube' else 'emitting cube'} is not supported yet "
+                             f"(textures work on spheres, rectangles and cubes)")
         name = node.get("id") if isinstance(node.get("id"), str) else None
         if name is None:
             name = str(key) if not (isinstance(node, XmlDict) or str(key).startswith("_arg_")) else t
@@ -903,7 +1003,8 @@ class _Builder:
                 self.fail(w("to_world"), "a sphere's to_world must not mirror (Mitsuba would turn its normals "
                                          "inwards)")
             scale = 1.0 if s2 == 1.0 else float(np.sqrt(s2))
-            sphere = Sphere(center=tf.transform_points(m, center), radius=scale * radius, material=mat_index)
+            sphere = Sphere(center=tf.transform_points(m, center), radius=scale * radius, material=mat_index,
+                            rotation=lin / scale)
             if not (np.all(np.isfinite(sphere.center)) and np.isfinite(sphere.radius)):
                 self.fail(where, "the sphere's centre or radius overflows (not finite)")
             scene.spheres.append(sphere)
@@ -926,8 +1027,13 @@ class _Builder:
             self.fail(where, "to_world makes vertex positions or normals overflow (not finite)")
         # an emitting cube stays triangles: a mesh light (its faces are not one parallelogram light each)
         kind = t if t == "rectangle" or (t == "cube" and radiance is None) else "mesh"
+        uvs = None
+        if t == "rectangle":
+            uvs = 0.5 * (_RECT_VERTICES[:, :2] + 1.0)  # Mitsuba's: ((x + 1) / 2, (y + 1) / 2)
+        elif t == "cube":
+            uvs = np.tile([[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]], (6, 1))  # each face onto [0, 1]^2
         mesh = TriangleMesh(vertices=vertices, faces=faces.astype(np.int64), normals=normals,
-                            material=mat_index, name=name, shape=kind)
+                            material=mat_index, name=name, shape=kind, uvs=uvs)
         if radiance is not None and t != "rectangle":
             scene.mesh_lights.append(MeshLight(mesh=len(scene.meshes), radiance=radiance))
         elif radiance is not None:
@@ -972,7 +1078,12 @@ class _Builder:
         self.value(node, path, props, "flip_tex_coords", BOOL, True)  # checked; no textures, so no effect
         file = resolve_file(filename, self.search_paths)
         try:
-            parts = meshio.read_mesh(file, node["type"])
+            if node["type"] == "serialized":
+                index = self.value(node, path, props, "shape_index", INT, 0)
+                self.in_range(_prop_where(node, path, "shape_index"), "shape_index", index, index >= 0, ">= 0")
+                parts = [meshio.read_serialized(file, index)]
+            else:
+                parts = meshio.read_mesh(file, node["type"])
         except meshio.MeshFileError as e:
             self.fail(where, f'mesh file "{filename}" {e}')
         vs, fs, ns, offset = [], [], [], 0

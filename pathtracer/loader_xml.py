@@ -27,7 +27,7 @@ Files and folders follow Mitsuba 3.9's ``FileResolver`` (src/core/fresolver.cpp,
 
 Scenes older than version 2.0.0 get Mitsuba's ``upgrade_from_v1`` and nothing else: property names
 go from camelCase to snake_case, diffuse ``diffuse_reflectance`` becomes ``reflectance``, and the
-0.x texture offsets/scales are refused (textures are not supported). Versions 2.x and 3.x are read
+0.x texture offsets/scales are refused (give the texture a to_uv instead). Versions 2.x and 3.x are read
 as they are.
 """
 
@@ -45,10 +45,9 @@ from . import transform as tf
 from .errors import SceneError
 
 # Element tags that make plugin objects, and the category each one makes.
-OBJECT_TAGS = {"integrator", "sensor", "film", "sampler", "rfilter", "bsdf", "shape", "emitter"}
+OBJECT_TAGS = {"integrator", "sensor", "film", "sampler", "rfilter", "bsdf", "shape", "emitter", "texture"}
 # Mitsuba tags this renderer does not support at all, with a hint.
 UNSUPPORTED_TAGS = {
-    "texture": "textures are not supported (give colours as <rgb> or <float>)",
     "medium": "participating media are not supported",
     "phase": "phase functions are not supported",
     "volume": "volumes are not supported",
@@ -563,8 +562,8 @@ class _Converter:
                 where = node.prop_where[key]
                 raise SceneError(self.source, " ".join(where.split()),
                                  f'"{key}" (a Mitsuba 0.x texture coordinate offset/scale, which Mitsuba 3 '
-                                 f'turns into "to_uv"): texture coordinate transforms are not supported (nor are '
-                                 f'textures)')
+                                 f'turns into "to_uv"): texture coordinate transforms are not supported in '
+                                 f'this 0.x form (give the texture a to_uv)')
 
     def path(self, el: _Element, at_file_root: bool):
         """``<path value="folder">``: searched before the scene's folder (last declared first)."""

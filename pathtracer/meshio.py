@@ -1,4 +1,5 @@
-"""Triangle meshes from OBJ and PLY files (read by trimesh) and Mitsuba's vertex-normal recomputation.
+"""Triangle meshes from OBJ and PLY files (read by trimesh), Mitsuba's ``serialized`` files (read here: zlib and
+a fixed binary layout), and Mitsuba's vertex-normal recomputation.
 
 ``read_mesh`` returns the file's geometry in object space, one :class:`MeshPart` per trimesh
 geometry (an OBJ with several materials or objects gives several), each with the file's vertex
@@ -54,6 +55,83 @@ def _parts_from_kwargs(kwargs_list) -> list[MeshPart]:
     return parts
 
 
+SERIALIZED_HEADER = 0x041C  # Mitsuba's MI_FILEFORMAT_HEADER
+SERIALIZED_FLAGS = {"normals": 0x0001, "texcoords": 0x0002, "colors": 0x0008, "double": 0x2000}
+
+
+def read_serialized(path: Path, shape_index: int = 0) -> MeshPart:
+    """Mesh ``shape_index`` of a Mitsuba ``.serialized`` file (src/shapes/serialized.cpp, versions 3 and 4): a
+    little-endian header (format 0x041C, version), a zlib stream per mesh (flags, a name in version 4, vertex and
+    face counts, positions, optional normals, texcoords and colours, uint32 indices), and at the end of the file the
+    meshes' offsets and their count."""
+    import struct
+    import zlib
+
+    try:
+        data = Path(path).read_bytes()
+    except OSError as e:
+        raise MeshFileError(f"cannot be read ({e.strerror or _one_line(e)})") from None
+    try:
+        fmt, version = struct.unpack_from("<hh", data, 0)
+        if fmt != SERIALIZED_HEADER:
+            raise MeshFileError("is not a Mitsuba serialized file (bad header)")
+        if version not in (3, 4):
+            raise MeshFileError(f"has serialized version {version} (supported: 3, 4)")
+        start = 0
+        if shape_index != 0:
+            (count,) = struct.unpack_from("<I", data, len(data) - 4)
+            if shape_index >= count:
+                raise MeshFileError(f"has {count} meshes: shape_index {shape_index} is out of range")
+            if version == 4:
+                (start,) = struct.unpack_from("<Q", data, len(data) - 8 * (count - shape_index) - 4)
+            else:
+                (start,) = struct.unpack_from("<I", data, len(data) - 4 * (count - shape_index + 1))
+        body = zlib.decompressobj().decompress(data[start + 4:])
+        (flags,) = struct.unpack_from("<I", body, 0)
+        pos = 4
+        if version == 4:
+            end = body.index(b"\0", pos)
+            pos = end + 1
+        nv, nf = struct.unpack_from("<QQ", body, pos)
+        pos += 16
+        real = np.float64 if flags & SERIALIZED_FLAGS["double"] else np.float32
+
+        def take(n, dtype):
+            nonlocal pos
+            a = np.frombuffer(body, dtype=np.dtype(dtype).newbyteorder("<"), count=n, offset=pos)
+            pos += a.nbytes
+            return a
+
+        vertices = take(3 * nv, real).reshape(-1, 3).astype(np.float64)
+        normals = take(3 * nv, real).reshape(-1, 3).astype(np.float64) if flags & SERIALIZED_FLAGS["normals"] else None
+        if flags & SERIALIZED_FLAGS["texcoords"]:
+            take(2 * nv, real)
+        if flags & SERIALIZED_FLAGS["colors"]:
+            take(3 * nv, real)
+        faces = take(3 * nf, np.uint32).reshape(-1, 3).astype(np.int64)
+    except MeshFileError:
+        raise
+    except (struct.error, zlib.error, ValueError) as e:
+        raise MeshFileError(f"is a truncated or corrupt serialized file ({_one_line(e)})") from None
+    part = MeshPart(vertices=vertices, faces=faces, normals=normals)
+    _check_parts([part])
+    return part
+
+
+def _check_parts(parts: list[MeshPart]) -> None:
+    if not parts or not any(len(p.faces) for p in parts):
+        raise MeshFileError("has no faces")
+    for p in parts:
+        if p.faces.min() < 0 or p.faces.max() >= len(p.vertices):
+            raise MeshFileError("has a face that references a vertex that does not exist")
+        if not np.all(np.isfinite(p.vertices)):
+            raise MeshFileError("has a vertex position that is NaN or infinite")
+        if p.normals is not None:
+            lengths = np.linalg.norm(p.normals, axis=1)
+            if not np.all(np.isfinite(lengths)) or np.any(lengths == 0):
+                raise MeshFileError("has a vertex normal that is zero, NaN or infinite")
+
+
 def read_mesh(path: Path, kind: str) -> list[MeshPart]:
     """Read an ``obj`` or ``ply`` file with trimesh (no merging or reordering of vertices)."""
     from trimesh.exchange import obj as tobj
@@ -91,17 +169,7 @@ def read_mesh(path: Path, kind: str) -> list[MeshPart]:
     finally:
         log.setLevel(level)
 
-    if not parts:
-        raise MeshFileError("has no faces")
-    for p in parts:
-        if p.faces.min() < 0 or p.faces.max() >= len(p.vertices):
-            raise MeshFileError("has a face that references a vertex that does not exist")
-        if not np.all(np.isfinite(p.vertices)):
-            raise MeshFileError("has a vertex position that is NaN or infinite")
-        if p.normals is not None:
-            lengths = np.linalg.norm(p.normals, axis=1)
-            if not np.all(np.isfinite(lengths)) or np.any(lengths == 0):
-                raise MeshFileError("has a vertex normal that is zero, NaN or infinite")
+    _check_parts(parts)
     return parts
 
 

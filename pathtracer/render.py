@@ -246,7 +246,8 @@ class Renderer:
                                              self.light_sampling, self.triangles)
         # the light tracer starts on parallelogram lights only and splats each light path into the one pixel it
         # lands in (a box filter's film) through a pinhole; it knows diffuse surfaces and mirrors only
-        possible = (not (self.features.pixel_filter or self.features.thin_lens or self.features.other_materials)
+        possible = (not (self.features.pixel_filter or self.features.thin_lens or self.features.other_materials
+                         or self.features.textures)
                     and self.scene.only_rect_lights
                     and self.features.mirrors and self.features.lights and self.view == "radiance"
                     and (self.max_depth < 0 or self.max_depth >= 3))

@@ -17,8 +17,10 @@ THIN_DIELECTRIC = 3
 CONDUCTOR = 4  # smooth, with a complex index of refraction
 PLASTIC = 5
 ROUGH_CONDUCTOR = 6
+ROUGH_PLASTIC = 7
 MATERIAL_KINDS = {"diffuse": DIFFUSE, "mirror": MIRROR, "dielectric": DIELECTRIC, "thindielectric": THIN_DIELECTRIC,
-                  "conductor": CONDUCTOR, "plastic": PLASTIC, "roughconductor": ROUGH_CONDUCTOR}
+                  "conductor": CONDUCTOR, "plastic": PLASTIC, "roughconductor": ROUGH_CONDUCTOR,
+                  "roughplastic": ROUGH_PLASTIC}
 DELTA_KINDS = ("mirror", "dielectric", "thindielectric", "conductor")  # no lobe that next-event estimation sees
 
 
@@ -33,7 +35,7 @@ class Material:
     - ``conductor`` / ``roughconductor``: complex index ``eta + i k`` per channel, ``rgb`` the
       specular_reflectance; the rough one with microfacet ``distribution`` of roughness ``alpha``;
     - ``plastic``: a diffuse base ``rgb`` under a smooth dielectric coat of index ``eta[0]``, whose reflection
-      ``rgb2`` scales.
+      ``rgb2`` scales; ``roughplastic`` the same under a rough coat (``distribution``, ``alpha``).
 
     One-sided materials reflect only on their front side (Mitsuba: the shading normal's side; the loader winds
     rectangles and cubes so that the face normal agrees); ``twosided`` ones on both.
@@ -48,6 +50,7 @@ class Material:
     alpha: float = 0.0
     distribution: str = "beckmann"
     nonlinear: bool = False
+    texture: int = -1  # >= 0: Scene.textures[texture] gives ``rgb`` per point (``rgb`` is then its mean)
 
     @property
     def code(self) -> int:
@@ -155,6 +158,28 @@ class Sphere:
     center: np.ndarray  # (3,)
     radius: float
     material: int  # index into Scene.materials
+    rotation: np.ndarray | None = None  # 3x3: the object frame (for texture coordinates), None: the world's
+
+
+@dataclass
+class Texture:
+    """Mitsuba's ``checkerboard`` (``color0`` where the two uv cells' parities agree, else ``color1``) or
+    ``bitmap`` (linear RGB ``image``, row 0 at v = 0, ``filter`` bilinear or nearest, ``wrap`` repeat, mirror or
+    clamp), looked up at ``to_uv`` (2x3 affine) times the surface's uv."""
+
+    kind: str
+    to_uv: np.ndarray = field(default_factory=lambda: np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]))
+    color0: tuple[float, float, float] = (0.4, 0.4, 0.4)
+    color1: tuple[float, float, float] = (0.2, 0.2, 0.2)
+    image: np.ndarray | None = None
+    filter: str = "bilinear"
+    wrap: str = "repeat"
+    filename: str = ""
+
+    def mean(self) -> tuple[float, float, float]:
+        if self.kind == "checkerboard":
+            return tuple(0.5 * (a + b) for a, b in zip(self.color0, self.color1))
+        return tuple(float(x) for x in self.image.reshape(-1, 3).mean(axis=0))
 
 
 @dataclass
@@ -173,6 +198,7 @@ class TriangleMesh:
     light: int = -1
     name: str = ""
     shape: str = "mesh"
+    uvs: np.ndarray | None = None  # (N, 2) texture coordinates per vertex (Mitsuba's, for rectangles and cubes)
 
 
 @dataclass
@@ -288,6 +314,7 @@ class Scene:
     spot_lights: list[SpotLight] = field(default_factory=list)
     directional_lights: list[DirectionalLight] = field(default_factory=list)
     environment: tuple[float, float, float] | None = None  # Mitsuba's ``constant`` emitter: radiance from every direction
+    textures: list[Texture] = field(default_factory=list)
     envmap: EnvMap | None = None  # Mitsuba's ``envmap`` emitter (at most one environment: this or ``environment``)
     source: str = "<scene>"
     rfilter: PixelFilter = field(default_factory=PixelFilter)  # the loader gives Mitsuba's default, gaussian

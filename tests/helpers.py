@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from pathtracer.scene import Camera, Integrator, Material, RectLight, Scene, Sphere, TriangleMesh
+from pathtracer.scene import Camera, Integrator, Material, RectLight, Scene, Sphere, Texture, TriangleMesh
 
 # ------------------------------------------------------------------------------------------------
 # cameras and scenes
@@ -186,6 +186,8 @@ _POINT_ATTRS = {"center", "vertices", "points", "origin", "corner", "p0"}
 _VECTOR_ATTRS = {"half_u", "half_v", "u", "v", "edge_u", "edge_v", "e1", "e2"}
 _NORMAL_ATTRS = {"normal", "normals"}
 _LENGTH_ATTRS = {"radius"}
+_FRAME_ATTRS = {"rotation"}  # 3x3 object frames: rotated
+_SURFACE_ATTRS = {"uvs"}  # texture coordinates: unchanged
 
 
 def similarity(scale: float = 1.0, translate=(0.0, 0.0, 0.0), rotate=None) -> np.ndarray:
@@ -221,6 +223,10 @@ def transform_scene(scene: Scene, matrix) -> Scene:
             val = getattr(obj, f.name)
             if f.name in _LENGTH_ATTRS:
                 setattr(obj, f.name, type(val)(val * s))
+            elif f.name in _FRAME_ATTRS and val is not None:
+                setattr(obj, f.name, rot @ val)
+            elif f.name in _SURFACE_ATTRS:
+                continue
             elif isinstance(val, np.ndarray) and val.dtype.kind == "f":
                 pts = val.reshape(-1, 3)
                 if f.name in _POINT_ATTRS:
@@ -237,7 +243,7 @@ def transform_scene(scene: Scene, matrix) -> Scene:
         items = getattr(out, f.name)
         if isinstance(items, list):
             for obj in items:
-                if dataclasses.is_dataclass(obj) and not isinstance(obj, Material):
+                if dataclasses.is_dataclass(obj) and not isinstance(obj, (Material, Texture)):
                     move(obj)
     cam = out.camera
     c2w = np.asarray(cam.to_world, dtype=np.float64).copy()

@@ -10,6 +10,7 @@ import numpy as np
 import warp as wp
 
 from kernels.bsdfs import (fresnel_conductor, fresnel_dielectric, microfacet_d, plastic_diffuse_f, rough_conductor_f,
+                           rough_plastic_f, rough_plastic_pdf,
                            rough_conductor_pdf, sample_microfacet)
 from kernels.camera import camera_ray
 from kernels.film import filter_offset
@@ -25,7 +26,8 @@ from kernels.rng import rand4
 from kernels.sampling import (cosine_hemisphere, orthonormal_basis, pick_in_cdf, reflect, sample_cosine_around,
                               sample_parallelogram)
 from kernels.sphere import SELF_NONE, ray_sphere
-from kernels.types import CameraData, SceneData
+from kernels.textures import surface_uv, texture_eval
+from kernels.types import CameraData, Hit, SceneData
 
 INF = wp.constant(3.0e38)
 
@@ -386,3 +388,28 @@ def probe_fresnel(cos_i: wp.array(dtype=float), eta: float, ceta: wp.vec3, ck: w
     f_d[i] = wp.vec3(fr.F, fr.cos_t, fr.eta_ti)
     f_c[i] = fresnel_conductor(cos_i[i], ceta, ck)
     plastic[i] = plastic_diffuse_f(cos_i[i], cos_i[i], eta, wp.vec3(0.5), 0.5904789, 0)
+
+
+@wp.kernel(enable_backward=False)
+def probe_textures(scene: SceneData, quad: wp.array(dtype=wp.int32), sphere: wp.array(dtype=wp.int32),
+                   p: wp.array(dtype=wp.vec3), tex: wp.array(dtype=wp.int32), uv_in: wp.array(dtype=wp.vec2),
+                   uv_out: wp.array(dtype=wp.vec2), value: wp.array(dtype=wp.vec3)):
+    """surface_uv at point p[i] of quad[i] or sphere[i]; texture tex[i] at uv_in[i]."""
+    i = wp.tid()
+    hit = Hit()
+    hit.p = p[i]
+    hit.quad = quad[i]
+    hit.sphere = sphere[i]
+    uv_out[i] = surface_uv(scene, hit)
+    value[i] = texture_eval(scene, tex[i], uv_in[i])
+
+
+@wp.kernel(enable_backward=False)
+def probe_rough_plastic(wi: wp.array(dtype=wp.vec3), wo: wp.array(dtype=wp.vec3), alpha: float, dist: int,
+                        eta: float, diffuse: wp.vec3, internal: float, t_i: wp.array(dtype=float),
+                        t_o: wp.array(dtype=float), p_coat: wp.array(dtype=float), f_cos: wp.array(dtype=wp.vec3),
+                        pdf: wp.array(dtype=float)):
+    i = wp.tid()
+    f_cos[i] = rough_plastic_f(wi[i], wo[i], alpha, dist, eta, diffuse, wp.vec3(1.0), internal, 0, t_i[i],
+                               t_o[i]) * wp.max(wo[i][2], 0.0)
+    pdf[i] = rough_plastic_pdf(wi[i], wo[i], alpha, dist, p_coat[i])

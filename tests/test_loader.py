@@ -11,6 +11,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from pathtracer import meshio
 from pathtracer import transform as tf
 from pathtracer.errors import SceneError
 from pathtracer.loader import load_dict, load_file
@@ -680,7 +681,7 @@ BAD_XML = [
     ('<shape type="sphere" foo="1"/>', '<shape type="sphere">', 'unexpected attribute "foo"'),
     ('<shape type="sphere"><foo/></shape>', "<foo>", "unknown element <foo>"),
     ('<shape type="sphere"><texture type="bitmap" name="x"/></shape>', '<texture type="bitmap" name="x">',
-     "textures are not supported"),
+     "a texture cannot appear inside"),
     ('<bsdf type="diffuse"><spectrum name="reflectance" type="blackbody"/></bsdf>',
      '<spectrum type="blackbody" name="reflectance">', 'spectrum plugins (<spectrum type="blackbody">) are not supported'),
     ('<shape type="sphere"><bsdf type="diffuse"><spectrum name="reflectance" value="1.5"/></bsdf></shape>',
@@ -706,7 +707,7 @@ BAD_XML = [
     ('<bsdf type="roughconductor"><string name="distribution" value="phong"/></bsdf>', '<string name="distribution">',
      'unknown distribution "phong" (supported: beckmann, ggx)'),
     ('<bsdf type="roughconductor"><texture name="alpha" type="checkerboard"/></bsdf>', '<texture',
-     "not supported"),
+     "alpha: a texture is not supported here"),
     ('<bsdf type="conductor"><string name="material" value="Unobtainium"/></bsdf>', '<string name="material">',
      'unknown conductor material "Unobtainium"'),
     ('<bsdf type="conductor"><string name="material" value="au"/></bsdf>', '<string name="material">',
@@ -953,7 +954,13 @@ BAD_DICTS = [
      "['s']['bsdf']", 'reference to unknown id "x"'),
     ({"type": "scene", "cam": {"type": "perspective", "fov": 45}, "s": {"type": "sphere", "bsdf": {
         "type": "diffuse", "reflectance": {"type": "bitmap", "filename": "a.png"}}}},
-     "['s']['bsdf']['reflectance']", '"bitmap" is not supported (give an rgb value or a float)'),
+     "['s']['bsdf']['reflectance']['filename']", 'bitmap "a.png": cannot read'),
+    ({"type": "scene", "cam": {"type": "perspective", "fov": 45}, "s": {"type": "sphere", "bsdf": {
+        "type": "diffuse", "reflectance": {"type": "mesh_attribute"}}}},
+     "['s']['bsdf']['reflectance']", 'texture type "mesh_attribute" is not supported (supported: bitmap, checkerboard)'),
+    ({"type": "scene", "cam": {"type": "perspective", "fov": 45}, "s": {"type": "sphere", "bsdf": {
+        "type": "dielectric", "specular_transmittance": {"type": "checkerboard"}}}},
+     "['s']['bsdf']['specular_transmittance']", "a texture is not supported here"),
     ({"type": "scene", "cam": {"type": "perspective", "fov": 45}, "s": {"type": "sphere", "bsdf": {
         "type": "diffuse", "reflectance": {"type": "rgb", "value": [0.1, 0.2]}}}},
      "['s']['bsdf']['reflectance']", "must be an rgb value"),
@@ -1017,8 +1024,46 @@ FUZZ_BASE = f"""<scene version="3.0.0">
 </scene>
 """
 
+# the elements of issue 10 (Mitsuba scenes in the wild): every bsdf, texture, emitter and integrator it added
+FUZZ_BASE_FEATURES = f"""<scene version="3.0.0">
+    <default name="spp" value="4"/>
+    <integrator type="direct"><integer name="emitter_samples" value="1"/></integrator>
+    <sensor type="thinlens">
+        <float name="fov" value="45"/><float name="aperture_radius" value="0.05"/><float name="focus_distance" value="5"/>
+        <transform name="to_world"><lookat origin="0, 0, 7" target="0, 0, 4" up="0, 1, 0"/></transform>
+        <sampler type="independent"><integer name="sample_count" value="$spp"/></sampler>
+        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="6"/>
+            <rfilter type="gaussian"><float name="stddev" value="0.5"/></rfilter></film>
+    </sensor>
+    <texture type="bitmap" id="tiles"><string name="filename" value="{ROOT / 'scenes' / 'features' / 'maps' / 'tiles.png'}"/>
+        <string name="wrap_mode" value="mirror"/></texture>
+    <emitter type="envmap"><string name="filename" value="{ROOT / 'scenes' / 'features' / 'maps' / 'sky_sun.exr'}"/>
+        <float name="scale" value="0.5"/></emitter>
+    <emitter type="spot"><float name="cutoff_angle" value="30"/><rgb name="intensity" value="2"/></emitter>
+    <emitter type="point"><point name="position" value="0, 3, 0"/></emitter>
+    <shape type="rectangle"><transform name="to_world"><scale value="2"/><rotate x="1" angle="-90"/></transform>
+        <bsdf type="plastic"><texture type="checkerboard" name="diffuse_reflectance">
+            <transform name="to_uv"><scale x="4" y="4"/></transform></texture>
+            <float name="int_ior" value="1.5"/></bsdf></shape>
+    <shape type="sphere"><float name="radius" value="0.5"/><bsdf type="dielectric"><string name="int_ior" value="water"/></bsdf></shape>
+    <shape type="sphere"><point name="center" value="1, 0, 0"/><bsdf type="roughconductor"><string name="material" value="Au"/>
+        <string name="distribution" value="ggx"/><float name="alpha" value="0.2"/></bsdf></shape>
+    <shape type="sphere"><point name="center" value="-1, 0, 0"/><bsdf type="diffuse"><ref name="reflectance" id="tiles"/></bsdf></shape>
+    <shape type="cube"><bsdf type="conductor"><rgb name="eta" value="0.2, 0.9, 1.1"/><rgb name="k" value="3.9, 2.4, 2.1"/></bsdf></shape>
+    <shape type="rectangle"><bsdf type="thindielectric"><rgb name="specular_transmittance" value="0.9"/></bsdf></shape>
+    <shape type="sphere"><point name="center" value="0, 2, 0"/><float name="radius" value="0.2"/>
+        <emitter type="area"><rgb name="radiance" value="5"/></emitter></shape>
+    <shape type="sphere"><point name="center" value="0, -2, 0"/><bsdf type="roughplastic"><float name="alpha" value="0.3"/>
+        <string name="distribution" value="ggx"/></bsdf></shape>
+    <shape type="serialized"><string name="filename" value="{ROOT / 'scenes' / 'features' / 'maps' / 'two_meshes.serialized'}"/>
+        <integer name="shape_index" value="1"/></shape>
+</scene>
+"""
+
 _TOKENS = ["nan", "inf", "-inf", "-1", "0", "1e309", "-0.5", "3", "1 2", "true", "x", "", "$spp", "$nope",
-           "sphere", "rectangle", "area", "white", "1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1", "99999999999999999999999"]
+           "sphere", "rectangle", "area", "white", "1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1", "99999999999999999999999",
+           "ggx", "Au", "bk7", "tiles", "clamp", "nearest", "dielectric", "checkerboard", "bitmap", "envmap",
+           "roughplastic", "serialized"]
 
 
 _KINDS = ["attr_value"] * 4 + ["number"] * 4 + ["attr_name", "delete_attr", "delete_elem", "dup_elem",
@@ -1026,8 +1071,8 @@ _KINDS = ["attr_value"] * 4 + ["number"] * 4 + ["attr_name", "delete_attr", "del
 
 
 @st.composite
-def _mutated_scene(draw):
-    text = FUZZ_BASE
+def _mutated_scene(draw, base=FUZZ_BASE):
+    text = base
     for _ in range(draw(st.integers(1, 3))):
         kind = draw(st.sampled_from(_KINDS))
         attrs = list(re.finditer(r'(\w+)="([^"]*)"', text))
@@ -1084,6 +1129,20 @@ def test_fuzz_mutated_scenes_raise_only_scene_errors(tmp_path_factory, data, wit
         assert isinstance(scene, Scene) and scene.spp > 0 and scene.width > 0
         for m in scene.meshes:
             assert np.all(np.isfinite(m.vertices))
+
+
+@settings(max_examples=200, deadline=None, derandomize=True, database=None, suppress_health_check=list(HealthCheck))
+@given(data=_mutated_scene(FUZZ_BASE_FEATURES), with_param=st.booleans())
+def test_fuzz_mutated_feature_scenes_raise_only_scene_errors(tmp_path_factory, data, with_param):
+    """The same on a scene with the bsdfs, textures, emitters, filter, lens and integrator of issue 10."""
+    test_fuzz_mutated_scenes_raise_only_scene_errors.hypothesis.inner_test(tmp_path_factory, data, with_param)
+
+
+def test_fuzz_feature_base_scene_loads(tmp_path):
+    s = load_file(write(tmp_path, FUZZ_BASE_FEATURES))
+    assert len(s.textures) == 2 and s.envmap is not None and s.integrator.kind == "direct"
+    assert {m.kind for m in s.materials} >= {"plastic", "dielectric", "roughconductor", "conductor", "thindielectric",
+                                             "roughplastic"}
 
 
 def test_fuzz_base_scene_loads(tmp_path):
@@ -1161,3 +1220,35 @@ def test_thinlens_and_accepted_film_properties(tmp_path):
     p = load_xml(tmp_path, "", '<sensor type="perspective"><float name="fov" value="30"/>'
                                '<float name="focus_distance" value="3"/></sensor>')
     assert p.camera.aperture_radius == 0.0  # accepted and unused by a pinhole, as in Mitsuba
+
+
+def test_what_we_read_page_is_generated_from_the_plugin_table():
+    """docs/what_we_read.md is pathtracer.plugin_docs' output (regenerate: python -m pathtracer.plugin_docs >
+    docs/what_we_read.md), so the page cannot drift from what the loader reads."""
+    from pathtracer import loader, plugin_docs
+
+    page = (Path(__file__).parents[1] / "docs" / "what_we_read.md").read_text()
+    assert page == plugin_docs.markdown()
+    for t, p in loader.PLUGINS.items():
+        assert f"| `{t}` |" in page
+        assert all(f"`{k}`" in page for k in p.props)
+
+
+def test_serialized_meshes_and_their_errors(tmp_path):
+    maps = ROOT / "scenes" / "features" / "maps"
+    body = f'<shape type="serialized"><string name="filename" value="{maps / "two_meshes.serialized"}"/>' \
+           '<integer name="shape_index" value="1"/></shape>'
+    s = load_xml(tmp_path, body)
+    teapot = meshio.read_mesh(ROOT / "scenes" / "meshes" / "teapot.obj", "obj")[0]
+    assert np.allclose(s.meshes[0].vertices, teapot.vertices, atol=1e-6)  # float32 in the file
+    assert np.array_equal(s.meshes[0].faces, teapot.faces) and s.meshes[0].normals is not None
+    data = (maps / "two_meshes.serialized").read_bytes()
+    cases = [(data[:8], 0, "truncated or corrupt"), (b"\x00\x00" + data[2:], 0, "bad header"),
+             (data, 2, "shape_index 2 is out of range"), (data, -1, "shape_index must be >= 0")]
+    for i, (blob, index, problem) in enumerate(cases):
+        f = tmp_path / f"bad{i}.serialized"
+        f.write_bytes(blob)
+        with pytest.raises(SceneError) as e:
+            load_xml(tmp_path, f'<shape type="serialized"><string name="filename" value="{f}"/>'
+                               f'<integer name="shape_index" value="{index}"/></shape>')
+        assert problem in str(e.value) and "\n" not in str(e.value), str(e.value)
