@@ -35,11 +35,12 @@ SCENES = [  # (feature scene, what it shows)
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--width", type=int, default=192)
-    ap.add_argument("--height", type=int, default=144)
-    ap.add_argument("--spp", type=int, default=1024, help="samples per pixel per renderer (split into batches)")
-    ap.add_argument("--batches", type=int, default=8)
+    ap.add_argument("--width", type=int, default=160)
+    ap.add_argument("--height", type=int, default=120)
+    ap.add_argument("--spp", type=int, default=2048, help="samples per pixel per renderer (split into batches)")
+    ap.add_argument("--batches", type=int, default=16)
     ap.add_argument("--out", default=str(ROOT / "docs" / "gallery"))
+    ap.add_argument("--only", nargs="*", help="these scenes only, printed, not written to docs/gallery.md")
     a = ap.parse_args(argv)
 
     import mitsuba as mi
@@ -52,6 +53,8 @@ def main(argv=None) -> int:
     per = a.spp // a.batches
     rows = []
     for name, what in SCENES:
+        if a.only and name not in a.only:
+            continue
         path = ROOT / "scenes" / "features" / f"{name}.xml"
         params = {"width": a.width, "height": a.height}
         scene = pathtracer.load_file(path, **params)
@@ -76,6 +79,8 @@ def main(argv=None) -> int:
                      "seconds_ours": t_ours, "seconds_mitsuba": t_theirs})
         print(f"{name}: bias ratio {ratio:.3f}, image mean z {z_mean:+.2f}, ours {t_ours:.1f} s, "
               f"Mitsuba {t_theirs:.1f} s", flush=True)
+    if a.only:
+        return 0
     meta = {"width": a.width, "height": a.height, "spp": a.spp, "batches": a.batches, "mitsuba": mi.__version__,
             "variant": mi.variant(), "scenes": rows}
     (out / "gallery.json").write_text(json.dumps(meta, indent=1))
