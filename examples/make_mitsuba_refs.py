@@ -71,13 +71,19 @@ def main(argv=None) -> int:
         scene = mi.load_file(str(ROOT / "scenes" / f"{scene_name}.xml"), **params)
         t0 = time.perf_counter()
         per = a.spp // a.batches
-        imgs = np.stack([np.array(mi.render(scene, spp=per, seed=b), dtype=np.float64)[..., :3]
-                         for b in range(a.batches)])
-        mean = imgs.mean(axis=0).astype(np.float32)
-        var = (imgs.var(axis=0, ddof=1) / a.batches).astype(np.float32)
+        full = np.stack([np.array(mi.render(scene, spp=per, seed=b), dtype=np.float64) for b in range(a.batches)])
+        fmean = full.mean(axis=0).astype(np.float32)
+        fvar = (full.var(axis=0, ddof=1) / a.batches).astype(np.float32)
         name = ref_name(scene_name, depth)
-        pathtracer.write_image(out / f"{name}.exr", mean)
-        pathtracer.write_image(out / f"{name}_var.exr", var)
+        # the integrator's layers (the moment integrator's XYZ and m2_ XYZ), three channels each, in the
+        # reference's own file: channels <layer>.X, .Y, .Z beside R, G, B
+        aovs = scene.integrator().aov_names()
+        layer_names = [aovs[i].rsplit(".", 1)[0] for i in range(0, len(aovs), 3)]
+        layers = {n: fmean[..., 3 + 3 * i:6 + 3 * i] for i, n in enumerate(layer_names)}
+        layers_var = {n: fvar[..., 3 + 3 * i:6 + 3 * i] for i, n in enumerate(layer_names)}
+        mean, var = fmean[..., :3], fvar[..., :3]
+        pathtracer.write_image(out / f"{name}.exr", mean, layers=layers or None)
+        pathtracer.write_image(out / f"{name}_var.exr", var, layers=layers_var or None)
         meta["refs"][name] = {"scene": f"scenes/{scene_name}.xml", "max_depth": depth,
                               "group": "feature" if scene_name.startswith("features/") else "seed"}
         print(f"{name}: mean {mean.mean():.5f}, {time.perf_counter() - t0:.1f} s", flush=True)

@@ -1,4 +1,5 @@
-"""Film sample positions drawn from the reconstruction filter (filter importance sampling).
+"""Film sample positions drawn from the reconstruction filter (filter importance sampling), and the film's colour
+conversion for the moment integrator's XYZ layers.
 
 The filter's CDF on [-radius, radius] is a table (pathtracer/rfilter.py: ``filter_cdf``), linear between its points
 (a piecewise-constant pdf). Each axis is drawn separately, from the filter truncated to the film, as Mitsuba's film
@@ -45,3 +46,13 @@ def filter_offset(cdf: wp.array(dtype=float), radius: float, pixel: int, size: i
     a = filter_cdf_at(cdf, radius, -c - float(border))
     b = filter_cdf_at(cdf, radius, float(size + border) - c)
     return filter_cdf_inverse(cdf, radius, a + u * (b - a))
+
+
+@wp.func
+def srgb_to_xyz(c: wp.vec3d) -> wp.vec3d:
+    """Linear Rec. 709 RGB to CIE XYZ, Mitsuba's matrix (its moment integrator records XYZ)."""
+    return wp.vec3d(
+        wp.float64(0.412453) * c[0] + wp.float64(0.357580) * c[1] + wp.float64(0.180423) * c[2],
+        wp.float64(0.212671) * c[0] + wp.float64(0.715160) * c[1] + wp.float64(0.072169) * c[2],
+        wp.float64(0.019334) * c[0] + wp.float64(0.119193) * c[1] + wp.float64(0.950227) * c[2],
+    )

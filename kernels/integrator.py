@@ -25,13 +25,13 @@ import warp as wp
 
 from kernels.camera import camera_ray, thin_lens_ray
 from kernels.envmap import env_eval, env_pdf, env_sample
-from kernels.film import filter_offset
+from kernels.film import filter_offset, srgb_to_xyz
 from kernels.lights import sample_sphere_cone, sample_triangle_light, sphere_cone_pdf, spot_falloff
 from kernels.materials import MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_DIFFUSE, MAT_THIN_DIELECTRIC, make_materials
 from kernels.mesh import mesh_hit, smooth_normal, sphere_hit
 from kernels.triangle import mesh_closest, mesh_occluded
 from kernels.triangle_warp import warp_mesh_closest, warp_mesh_occluded
-from kernels.offset import max_abs, offset_origin
+from kernels.offset import FLT_EPS, max_abs, offset_origin
 from kernels.quad import nearest_quad, occluded_quads, quad_hit
 from kernels.textures import surface_uv, texture_eval
 from kernels.sobol import independent4, padded_sobol4, replicate_seed
@@ -102,6 +102,7 @@ class Features:
     plastics: bool = False
     rough_conductors: bool = False
     rough_plastics: bool = False
+    moments: bool = False  # Mitsuba's moment integrator: also sum each sample's squared XYZ (kernels/film.py)
 
     @property
     def other_materials(self) -> bool:
@@ -198,7 +199,35 @@ def make_tracers(features: Features):
                 return True
         return False
 
-    return trace, occluded
+    @wp.func
+    def occluded_but_face(scene: SceneData, o: wp.vec3, d: wp.vec3, tmax: float, skip_quad: int, origin_sphere: int,
+                          origin_normal: wp.vec3, face: int) -> bool:
+        """``occluded`` for a segment that ends on triangle ``face`` (a mesh light's sample): the triangles' nearest
+        hit, not any hit, so that ``face`` itself never occludes. Its hit at the segment's end has a rounding error
+        of about eps (edge length)^2 / area relative: on slivers (a 1024-sided tube's facets, 4000:1) far more than
+        the end point's offset, which lost 2.7% of a thin tube light's light on the floor below it. A hit near the
+        end on another face counts only beyond its own rounding error (of the same kind) from the end."""
+        if wp.static(HAS_QUADS):
+            if occluded_quads(scene, o, d, tmax, skip_quad, -1):
+                return True
+        q = wp.static(closest)(scene, o, d, tmax)
+        if q.face >= 0 and q.face != face:
+            # a hit within its own rounding error of the end cannot be told from the end (a neighbour of the
+            # light's face, met beside their shared edge): the test's relative error in t is about
+            # eps (edge)^2 / (projected doubled area), bounded here with a factor 8
+            a = scene.points[scene.indices[3 * q.face + 0]]
+            b = scene.points[scene.indices[3 * q.face + 1]]
+            c = scene.points[scene.indices[3 * q.face + 2]]
+            e2 = wp.max(wp.length_sq(b - a), wp.max(wp.length_sq(c - b), wp.length_sq(a - c)))
+            proj = wp.abs(wp.dot(wp.cross(b - a, c - a), d))
+            if proj * q.t < proj * tmax - 8.0 * FLT_EPS * e2 * tmax:
+                return True
+        if wp.static(HAS_SPHERES):
+            if occluded_spheres(scene, o, d, tmax, origin_sphere, origin_normal):
+                return True
+        return False
+
+    return trace, occluded, occluded_but_face
 
 
 def make_render_kernel(features: Features):
@@ -237,8 +266,9 @@ def make_render_kernel(features: Features):
     # the power heuristic
     GLASS = features.dielectrics
     TEXTURES = features.textures
+    MOMENTS = features.moments
 
-    trace, occluded = make_tracers(features)
+    trace, occluded, occluded_but_face = make_tracers(features)
     sample_bsdf, eval_nee = make_materials(features)
 
     @wp.func
@@ -291,10 +321,11 @@ def make_render_kernel(features: Features):
 
     @wp.func
     def visible(scene: SceneData, hit: Hit, ng: wp.vec3, y: wp.vec3, yn: wp.vec3, y_scale: float, w: wp.vec3,
-                light_quad: int, far: bool) -> bool:
+                light_quad: int, far: bool, light_face: int) -> bool:
         """Does the shadow ray from the shading point towards unit ``w`` reach ``y`` (a point on an emitter with
-        normal ``yn``, zero for a point light; on quad ``light_quad``, -1 if none) unoccluded? The segment runs
-        between the two offset end points, stopping short of the emitter. ``far``: ``y`` is at infinity."""
+        normal ``yn``, zero for a point light; on quad ``light_quad`` or mesh-light triangle ``light_face``, -1 if
+        none) unoccluded? The segment runs between the two offset end points, stopping short of the emitter.
+        ``far``: ``y`` is at infinity."""
         so = offset_origin(hit.p, ng, hit.scale, w)
         if far:
             return not occluded(scene, so, w, INF, hit.quad, -1, hit.sphere, hit.ng)
@@ -305,17 +336,21 @@ def make_render_kernel(features: Features):
         seg_len = wp.length(seg)
         if seg_len <= 0.0:
             return False
+        if wp.static(MESH_LIGHTS):
+            if light_face >= 0:
+                return not occluded_but_face(scene, so, seg / seg_len, seg_len, hit.quad, hit.sphere, hit.ng,
+                                             light_face)
         return not occluded(scene, so, seg / seg_len, seg_len, hit.quad, light_quad, hit.sphere, hit.ng)
 
     @wp.func
     def lit(scene: SceneData, hit: Hit, ng: wp.vec3, ns: wp.vec3, y: wp.vec3, yn: wp.vec3, y_scale: float,
-            w: wp.vec3, far: bool) -> float:
+            w: wp.vec3, far: bool, light_face: int) -> float:
         """cos_x for light reaching the shading point along unit ``w`` from ``y`` (as ``visible``): 0 when it
         arrives from behind the shading or the geometric normal, or is occluded."""
         cos_x = wp.dot(ns, w)
         if cos_x <= 0.0 or wp.dot(ng, w) <= 0.0:
             return 0.0
-        if not visible(scene, hit, ng, y, yn, y_scale, w, -1, far):
+        if not visible(scene, hit, ng, y, yn, y_scale, w, -1, far, light_face):
             return 0.0
         return cos_x
 
@@ -339,7 +374,7 @@ def make_render_kernel(features: Features):
                         continue
                     w = wp.normalize(es.p - hit.p)
                     if wp.dot(es.n, w) < 0.0:  # the emitting (outer) side faces the shading point
-                        cos_x = lit(scene, hit, ng, ns, es.p, es.n, max_abs(es.p) + r, w, False)
+                        cos_x = lit(scene, hit, ng, ns, es.p, es.n, max_abs(es.p) + r, w, False, -1)
                         if cos_x > 0.0:
                             g = cos_x * es.inv_pdf
                             nw = nee_weight(scene, params, mat, kind, rgb, d, ns, w, cos_x, g, False)
@@ -376,7 +411,7 @@ def make_render_kernel(features: Features):
                         if wp.dot(ngy, w) > 0.0:
                             ngy = -ngy  # offset the far end towards the shading point
                         y_scale = wp.max(max_abs(a), wp.max(max_abs(b), max_abs(c)))
-                        cos_x = lit(scene, hit, ng, ns, es.p, -ngy, y_scale, w, False)
+                        cos_x = lit(scene, hit, ng, ns, es.p, -ngy, y_scale, w, False, f)
                         if cos_x > 0.0:
                             g = cos_x * es.inv_pdf
                             nw = nee_weight(scene, params, mat, kind, rgb, d, ns, w, cos_x, g, False)
@@ -390,7 +425,7 @@ def make_render_kernel(features: Features):
                 if dist2 <= 0.0:
                     continue
                 w = to_y / wp.sqrt(dist2)
-                cos_x = lit(scene, hit, ng, ns, y, wp.vec3(0.0), 0.0, w, False)
+                cos_x = lit(scene, hit, ng, ns, y, wp.vec3(0.0), 0.0, w, False, -1)
                 if cos_x > 0.0:
                     nw = nee_weight(scene, params, mat, kind, rgb, d, ns, w, cos_x, 0.0, True)
                     Ld += wp.cw_mul(scene.pl_intensity[j], nw) * (cos_x / dist2)
@@ -406,14 +441,14 @@ def make_render_kernel(features: Features):
                 falloff = spot_falloff(wp.normalize(scene.spot_to_local[j] * (-w))[2], cone[0], cone[1], cone[2],
                                        cone[3])
                 if falloff > 0.0:  # no shadow ray outside the cone
-                    cos_x = lit(scene, hit, ng, ns, y, wp.vec3(0.0), 0.0, w, False)
+                    cos_x = lit(scene, hit, ng, ns, y, wp.vec3(0.0), 0.0, w, False, -1)
                     if cos_x > 0.0:
                         nw = nee_weight(scene, params, mat, kind, rgb, d, ns, w, cos_x, 0.0, True)
                         Ld += wp.cw_mul(scene.spot_intensity[j], nw) * (falloff * cos_x / dist2)
         if wp.static(DIRECTIONAL):
             for j in range(scene.num_directional_lights):
                 w = -scene.dl_direction[j]
-                cos_x = lit(scene, hit, ng, ns, hit.p, wp.vec3(0.0), 0.0, w, True)
+                cos_x = lit(scene, hit, ng, ns, hit.p, wp.vec3(0.0), 0.0, w, True, -1)
                 if cos_x > 0.0:
                     nw = nee_weight(scene, params, mat, kind, rgb, d, ns, w, cos_x, 0.0, True)
                     Ld += wp.cw_mul(scene.dl_irradiance[j], nw) * cos_x
@@ -423,7 +458,7 @@ def make_render_kernel(features: Features):
                 u = wp.static(draw4)(key, dim, depth)
                 dim += wp.uint32(1)
                 w = sample_cosine_around(ns, u[0], u[1])
-                cos_x = lit(scene, hit, ng, ns, hit.p, wp.vec3(0.0), 0.0, w, True)
+                cos_x = lit(scene, hit, ng, ns, hit.p, wp.vec3(0.0), 0.0, w, True, -1)
                 if cos_x > 0.0:
                     nw = nee_weight(scene, params, mat, kind, rgb, d, ns, w, cos_x, wp.pi, False)
                     Ld += wp.cw_mul(scene.env_radiance, nw) * (wp.pi * inv_k)
@@ -435,7 +470,7 @@ def make_render_kernel(features: Features):
                 es = env_sample(scene, u[0], u[1])
                 if es.pdf <= 0.0:
                     continue
-                cos_x = lit(scene, hit, ng, ns, hit.p, wp.vec3(0.0), 0.0, es.d, True)
+                cos_x = lit(scene, hit, ng, ns, hit.p, wp.vec3(0.0), 0.0, es.d, True, -1)
                 if cos_x > 0.0:
                     g = cos_x / es.pdf
                     nw = nee_weight(scene, params, mat, kind, rgb, d, ns, es.d, cos_x, g, False)
@@ -618,7 +653,7 @@ def make_render_kernel(features: Features):
                                 light_quad = int(-1)
                                 if wp.static(HAS_QUADS):
                                     light_quad = scene.light_quad[l]
-                                if visible(scene, hit, ng, y, ln, l_scale, w, light_quad, False):
+                                if visible(scene, hit, ng, y, ln, l_scale, w, light_quad, False, -1):
                                     g = float(0.0)  # cos_x / pdf
                                     if omega > 0.0:
                                         g = cos_x * omega
@@ -705,6 +740,7 @@ def make_render_kernel(features: Features):
         accum: wp.array(dtype=wp.vec3d),
         accum_sq: wp.array(dtype=wp.vec3d),
         accum_rep: wp.array(dtype=wp.vec3d),
+        accum_m2: wp.array(dtype=wp.vec3d),  # with moments only (else one unused element)
         discarded: wp.array(dtype=wp.int32),
         ray_count: wp.array(dtype=wp.int64),
     ):
@@ -719,6 +755,9 @@ def make_render_kernel(features: Features):
         # float64 sums: finite float32 samples can never overflow them, nor lose small ones to rounding.
         total = accum[pixel]
         total_sq = accum_sq[pixel]
+        total_m2 = wp.vec3d()
+        if wp.static(MOMENTS):
+            total_m2 = accum_m2[pixel]
         bad = int(0)
         rays = wp.int64(0)
         npix = cam.width * cam.height
@@ -740,11 +779,16 @@ def make_render_kernel(features: Features):
                 total_sq = total_sq + wp.cw_mul(L64, L64)
                 slot = int(rep) * npix + pixel
                 accum_rep[slot] = accum_rep[slot] + L64
+                if wp.static(MOMENTS):
+                    xyz = srgb_to_xyz(L64)
+                    total_m2 = total_m2 + wp.cw_mul(xyz, xyz)
             else:
                 bad += 1  # dropped and counted, never averaged into the image
             rays += sample.rays
         accum[pixel] = total
         accum_sq[pixel] = total_sq
+        if wp.static(MOMENTS):
+            accum_m2[pixel] = total_m2
         # one counter per tile: Warp's CPU atomics are plain adds, and a tile is never rendered by two workers at once
         if bad > 0:
             wp.atomic_add(discarded, params.row_offset, bad)

@@ -93,7 +93,7 @@ def fold_pass(splat: wp.array(dtype=wp.vec3d), lt_sum: wp.array(dtype=wp.vec3d),
 
 def make_light_kernel(features: Features):
     """The light-tracing kernel for a scene with ``features`` (mirrors and lights)."""
-    trace, occluded = make_tracers(features)
+    trace, occluded, _ = make_tracers(features)
 
     @wp.kernel(enable_backward=False, module="unique")
     def light_pass(

@@ -7,7 +7,7 @@
 """
 
 from pathtracer.errors import ImageIOError, PathtracerError, RenderError, SceneError
-from pathtracer.imageio import read_image, write_image
+from pathtracer.imageio import read_image, read_layers, write_image
 from pathtracer.loader import load_dict, load_file
 from pathtracer.render import PassSum, Renderer, render
 from pathtracer.scene import Camera, Integrator, Material, RectLight, Scene, Sphere, TriangleMesh
@@ -17,6 +17,6 @@ __version__ = "0.1.0"
 __all__ = [
     "Camera", "ImageIOError", "Integrator", "Material", "PassSum", "PathtracerError", "RectLight",
     "RenderError", "Renderer", "Scene", "SceneError", "Sphere", "TriangleMesh", "load_dict", "load_file",
-    "read_image", "render", "write_image",
+    "read_image", "read_layers", "render", "write_image",
 ]
 

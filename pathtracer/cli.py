@@ -235,13 +235,20 @@ def run(args: argparse.Namespace, t_start: float | None = None) -> int:
         if _accepts(pathtracer.render, "stats"):
             stats = {}
             kwargs["stats"] = stats
+        layers: dict = {}
+        if getattr(getattr(scene, "integrator", None), "layer_names", ()) and _accepts(pathtracer.render, "layers"):
+            kwargs["layers"] = layers
         t0 = time.perf_counter()
         with warnings.catch_warnings():
             if stats is not None:  # reported in the summary line instead
                 warnings.filterwarnings("ignore", message=r".*non-finite samples", category=RuntimeWarning)
             image = pathtracer.render(scene, **kwargs)
         elapsed = time.perf_counter() - t0
-        write_image(args.output, image, display=args.view != "radiance")
+        if layers and not str(args.output).lower().endswith(".exr"):
+            print(f"{PROG}: note: the {', '.join(layers)} layers of the moment integrator go to .exr files only; "
+                  f"{args.output} holds the image", file=sys.stderr, flush=True)
+            layers = {}
+        write_image(args.output, image, display=args.view != "radiance", layers=layers or None)
         if args.stats is not None:
             stats = dict(stats or {})
             if t_start is not None:

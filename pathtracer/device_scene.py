@@ -432,6 +432,7 @@ class DeviceScene:
             environment=scene.environment is not None,
             envmap=scene.envmap is not None,
             textures=any(scene.materials[i].texture >= 0 for i in used),
+            moments=scene.integrator.moment is not None and view == "radiance",
         )
 
 

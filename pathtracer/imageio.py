@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import os
 import secrets
+from collections.abc import Mapping
 
 import numpy as np
 
 from pathtracer.errors import ImageIOError
 
 SUPPORTED_EXTENSIONS = (".exr", ".png")
+LAYER_CHANNELS = "XYZ"
 
 
 def _extension(path: str | os.PathLike) -> str:
@@ -65,12 +67,16 @@ def to_srgb8(image: np.ndarray) -> np.ndarray:
 # --- encoders (module-level so tests can replace them) -------------------------------------------
 
 
-def _write_exr(path: str, image: np.ndarray) -> None:
+def _write_exr(path: str, image: np.ndarray, layers: Mapping[str, np.ndarray] | None = None) -> None:
     import OpenEXR
 
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     # One "RGB" entry of shape (H, W, 3) is stored as the three standard channels R, G, B.
-    with OpenEXR.File(header, {"RGB": image}) as f:
+    channels = {"RGB": image}
+    for name, layer in (layers or {}).items():  # Mitsuba's layout: channels <layer>.X, <layer>.Y, <layer>.Z
+        for c, axis in zip(LAYER_CHANNELS, range(3)):
+            channels[f"{name}.{c}"] = np.ascontiguousarray(layer[..., axis])
+    with OpenEXR.File(header, channels) as f:
         f.write(path)
 
 
@@ -83,8 +89,12 @@ def _write_png(path: str, image: np.ndarray) -> None:
 # --- public API ---------------------------------------------------------------------------------
 
 
-def write_image(path: str | os.PathLike, image: np.ndarray, *, display: bool = False) -> None:
+def write_image(path: str | os.PathLike, image: np.ndarray, *, display: bool = False,
+                layers: Mapping[str, np.ndarray] | None = None) -> None:
     """Write an (H, W, 3) linear image: ``.exr`` as float32 RGB, ``.png`` as 8-bit sRGB.
+
+    ``layers`` (EXR only): more (H, W, 3) float32 images, stored as channels ``<name>.X``, ``.Y``, ``.Z`` beside
+    R, G, B (as Mitsuba writes its moment integrator's layers); ``read_layers`` reads them back.
 
     ``display=True`` says the values are already display colours (the debug views' 0.5 v + 0.5, as the seed
     shows them): a PNG then stores them without the sRGB curve. EXR always stores the values as given.
@@ -98,6 +108,13 @@ def write_image(path: str | os.PathLike, image: np.ndarray, *, display: bool = F
     if image.ndim != 3 or image.shape[2] != 3 or image.shape[0] == 0 or image.shape[1] == 0:
         raise ImageIOError(f"{path}: cannot write: expected an (H, W, 3) image, got shape {image.shape}")
     image = np.ascontiguousarray(image, dtype=np.float32)
+    if layers:
+        if ext != ".exr":
+            raise ImageIOError(f"{path}: cannot write: image layers ({', '.join(layers)}) need an .exr file")
+        layers = {k: np.asarray(v, dtype=np.float32) for k, v in layers.items()}
+        for k, v in layers.items():
+            if v.shape != image.shape:
+                raise ImageIOError(f"{path}: cannot write: layer {k!r} has shape {v.shape}, the image {image.shape}")
     if display and ext == ".png":
         image = srgb_to_linear(np.clip(image, 0.0, 1.0))  # the PNG encoder's sRGB curve then gives them back
 
@@ -109,8 +126,10 @@ def write_image(path: str | os.PathLike, image: np.ndarray, *, display: bool = F
     except OSError as e:
         raise ImageIOError(f"{path}: cannot write: {_reason(e)}") from None
     try:
-        writer = _write_exr if ext == ".exr" else _write_png
-        writer(tmp, image)
+        if layers:
+            _write_exr(tmp, image, layers)
+        else:
+            (_write_exr if ext == ".exr" else _write_png)(tmp, image)
         os.replace(tmp, path)
     except BaseException as e:
         try:
@@ -137,6 +156,21 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
         raise
     except Exception as e:  # library errors on corrupt files
         raise ImageIOError(f"{path}: cannot read: {_reason(e)}") from None
+
+
+def read_layers(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """The extra layers of an EXR file (channels ``<name>.X``, ``.Y``, ``.Z``), float32 (H, W, 3) by name."""
+    import OpenEXR
+
+    path = os.fspath(path)
+    try:
+        with OpenEXR.File(path, separate_channels=True) as f:
+            channels = {name: np.array(ch.pixels) for name, ch in f.channels().items()}
+    except Exception as e:
+        raise ImageIOError(f"{path}: cannot read: {_reason(e)}") from None
+    names = sorted({k.rsplit(".", 1)[0] for k in channels if "." in k})
+    return {n: np.stack([channels[f"{n}.{c}"].astype(np.float32) for c in LAYER_CHANNELS], axis=-1)
+            for n in names if all(f"{n}.{c}" in channels for c in LAYER_CHANNELS)}
 
 
 def _read_exr(path: str) -> np.ndarray:

@@ -8,6 +8,8 @@ semantics, defaults and checks live here, once. Supported subset, with Mitsuba 3
 element     type         properties (default)
 =========== ============ ==========================================================================
 integrator  path         max_depth (-1, unlimited; >= -1), rr_depth (5; > 0), hide_emitters (false)
+integrator  moment       the nested integrator (one path or direct) and its mean XYZ and per-sample
+                         second moment as EXR layers <name>.XYZ and m2_<name>.XYZ, as Mitsuba
 integrator  direct       path with max_depth 2 (the same paths and MIS); emitter_samples (or
                          shading_samples, 1) are next-event samples per light, bsdf_samples (1) one
                          BSDF sample; delta lights are not multiplied by emitter_samples (Mitsuba
@@ -49,6 +51,11 @@ shape       sphere       center (0), radius (1; > 0), to_world (translation, rot
                          Mitsuba composes to_world * translate(center) * scale(radius)
 shape       rectangle    to_world; [-1, 1]^2 at z = 0 with normal +z
 shape       cube         to_world; [-1, 1]^3, Mitsuba's 24 vertices and 12 outward triangles
+shape       disk         to_world, flip_normals; the unit disk at z = 0 (normal +z) as a 1024-gon of
+                         the same area (pathtracer/tessellate.py: outline within 3.2e-6 r)
+shape       cylinder     p0 (0), p1 (0, 0, 1), radius (1; > 0), to_world, flip_normals; open ends,
+                         normals outwards; a 1024-sided prism of the same lateral area with radial
+                         shading normals (outline within 3.2e-6 r)
 shape       serialized   filename (Mitsuba's compressed format, versions 3 and 4), shape_index (0),
                          face_normals, to_world; normals as the file's, else recomputed as Mitsuba
 shape       obj, ply     filename (relative to the scene file; for load_dict, to the working
@@ -97,7 +104,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import imageio, meshio, spectra
+from . import imageio, meshio, spectra, tessellate
 from .errors import ImageIOError
 from .material_data import CONDUCTOR_RGB, IOR as IOR_TABLE
 from . import transform as tf
@@ -120,6 +127,7 @@ class Plugin:
 
 PLUGINS = {
     "path": Plugin("integrator", {"max_depth": INT, "rr_depth": INT, "hide_emitters": BOOL}),
+    "moment": Plugin("integrator", {}, ("integrator",)),
     "direct": Plugin("integrator", {"shading_samples": INT, "emitter_samples": INT, "bsdf_samples": INT,
                                     "hide_emitters": BOOL}),
     "perspective": Plugin("sensor", {"fov": FLOAT, "focal_length": STRING, "fov_axis": STRING, "near_clip": FLOAT,
@@ -161,6 +169,9 @@ PLUGINS = {
                      ("bsdf", "emitter")),
     "rectangle": Plugin("shape", {"to_world": TRANSFORM, "flip_normals": BOOL}, ("bsdf", "emitter")),
     "cube": Plugin("shape", {"to_world": TRANSFORM, "flip_normals": BOOL}, ("bsdf", "emitter")),
+    "disk": Plugin("shape", {"to_world": TRANSFORM, "flip_normals": BOOL}, ("bsdf", "emitter")),
+    "cylinder": Plugin("shape", {"p0": POINT, "p1": POINT, "radius": FLOAT, "to_world": TRANSFORM,
+                                 "flip_normals": BOOL}, ("bsdf", "emitter")),
     "obj": Plugin("shape", {"filename": STRING, "face_normals": BOOL, "flip_tex_coords": BOOL,
                             "to_world": TRANSFORM, "flip_normals": BOOL}, ("bsdf", "emitter")),
     "ply": Plugin("shape", {"filename": STRING, "face_normals": BOOL, "flip_tex_coords": BOOL,
@@ -625,8 +636,10 @@ class _Builder:
 
     def integrator(self, node: Mapping, path: str) -> Integrator:
         spec = self.spec(node, path, ("integrator",))
-        props, _ = self.fields(node, path, spec)
+        props, objs = self.fields(node, path, spec)
         w = lambda k: _prop_where(node, path, k)  # noqa: E731
+        if node["type"] == "moment":
+            return self.moment(node, path, objs)
         if node["type"] == "direct":
             return self.direct(node, path, props)
         max_depth = self.value(node, path, props, "max_depth", INT, -1)
@@ -635,6 +648,20 @@ class _Builder:
         self.in_range(w("rr_depth"), "rr_depth", rr_depth, rr_depth > 0, "> 0")
         hide = self.value(node, path, props, "hide_emitters", BOOL, False)
         return Integrator(max_depth=max_depth, rr_depth=rr_depth, hide_emitters=hide)
+
+    def moment(self, node: Mapping, path: str, objs: list[_Obj]) -> Integrator:
+        """Mitsuba's moment integrator: the nested integrator's image, plus its mean XYZ and per-sample second
+        moment as layers named after it (its name, or "_arg_0" when it has none, as Mitsuba's parser)."""
+        where = _where(node, path)
+        if not objs:
+            self.fail(where, "the moment integrator needs a nested integrator (path or direct)")
+        if len(objs) > 1:
+            self.fail(_where(objs[1].node, objs[1].path), "only one integrator inside moment is supported")
+        inner = objs[0]
+        if inner.node["type"] == "moment":
+            self.fail(_where(inner.node, inner.path), "a moment integrator cannot nest another moment integrator")
+        name = next(k for k, v in node.items() if k not in ("type", "id") and _is_plugin(v))  # (the only one)
+        return dataclasses.replace(self.integrator(inner.node, inner.path), moment=name)
 
     def direct(self, node: Mapping, path: str, props: dict) -> Integrator:
         """Mitsuba's direct illumination integrator, as path tracing with max_depth 2."""
@@ -957,8 +984,10 @@ class _Builder:
         where = _where(node, path)
         t = node["type"]
         w = lambda k: _prop_where(node, path, k)  # noqa: E731
-        if self.value(node, path, props, "flip_normals", BOOL, False):
-            self.fail(w("flip_normals"), "flip_normals=true is not supported (turn the shape with to_world)")
+        flip_normals = self.value(node, path, props, "flip_normals", BOOL, False)
+        if flip_normals and t not in ("disk", "cylinder"):
+            self.fail(w("flip_normals"), f"flip_normals=true is not supported on a {t} (turn the shape with "
+                                         f"to_world)")
         m = self.value(node, path, props, "to_world", TRANSFORM, np.eye(4))
         bsdf = self.one(objs, "bsdf", where)
         emitter = self.one(objs, "emitter", where)
@@ -1021,6 +1050,8 @@ class _Builder:
             vertices = tf.transform_points(m, base_v)
             faces = base_f[:, [0, 2, 1]] if flip else base_f.copy()
             normals = None
+        elif t in ("disk", "cylinder"):
+            vertices, faces, normals, m = self.tessellated(node, path, props, m, flip_normals)
         else:
             vertices, faces, normals = self.mesh_file(node, path, props, m, flip)
         if not np.all(np.isfinite(vertices)) or (normals is not None and not np.all(np.isfinite(normals))):
@@ -1042,6 +1073,43 @@ class _Builder:
                                           normal=normal / np.linalg.norm(normal), radiance=radiance))
             mesh.light = len(scene.lights) - 1
         scene.meshes.append(mesh)
+
+    def tessellated(self, node: Mapping, path: str, props: dict, m: np.ndarray, flip_normals: bool):
+        """Mitsuba's disk or cylinder as a fine mesh (pathtracer/tessellate.py): world vertices, faces wound so
+        that their normal is Mitsuba's, vertex normals (None: flat) and the shape's full to_world."""
+        w = lambda k: _prop_where(node, path, k)  # noqa: E731
+        if node["type"] == "disk":
+            local_v, faces = tessellate.disk()
+            local_n = None
+        else:
+            p0 = self.value(node, path, props, "p0", POINT, np.zeros(3))
+            p1 = self.value(node, path, props, "p1", POINT, np.array([0.0, 0.0, 1.0]))
+            radius = self.value(node, path, props, "radius", FLOAT, 1.0)
+            self.in_range(w("radius"), "radius", radius, radius > 0, "> 0")
+            axis = np.asarray(p1, dtype=np.float64) - np.asarray(p0, dtype=np.float64)
+            length = float(np.linalg.norm(axis))
+            if not length > 0:
+                self.fail(w("p1"), "a cylinder's p0 and p1 must differ")
+            # Mitsuba: to_world @ translate(p0) @ to_frame(axis) @ scale(radius, radius, length)
+            z = axis / length
+            x = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
+            x /= np.linalg.norm(x)
+            frame = np.eye(4)
+            frame[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
+            frame[:3, 3] = p0
+            m = m @ frame @ np.diag([radius, radius, length, 1.0])
+            local_v, faces, local_n = tessellate.cylinder()
+        lin = m[:3, :3]
+        if not _check_invertible(lin):
+            self.fail(w("to_world"), "to_world is singular (a zero scale flattens the shape)")
+        if flip_normals:  # Mitsuba turns the normals to the other side
+            faces = faces[:, [0, 2, 1]]
+            local_n = None if local_n is None else -local_n
+        if np.linalg.det(lin) < 0:  # a mirroring to_world reverses the winding, not the (normal-transformed) normal
+            faces = faces[:, [0, 2, 1]]
+        vertices = tf.transform_points(m, local_v)
+        normals = None if local_n is None else tf.transform_normals(m, local_n)
+        return vertices, faces, normals, m
 
     def envmap(self, node: Mapping, path: str, props: dict) -> EnvMap:
         w = lambda k: _prop_where(node, path, k)  # noqa: E731

@@ -44,6 +44,11 @@ LAUNCH_SAMPLES = 1 << 15  # samples one launch aims at (~10-20 ms on a CPU core)
 MAX_PASSES_PER_LAUNCH = 16
 
 
+SRGB_TO_XYZ = np.array([[0.412453, 0.357580, 0.180423],  # Mitsuba's (kernels/film.py: srgb_to_xyz)
+                        [0.212671, 0.715160, 0.072169],
+                        [0.019334, 0.119193, 0.950227]])
+
+
 @dataclass
 class PassSum:
     """Per-pixel sums over ``passes`` sample passes: mergeable by addition.
@@ -65,6 +70,7 @@ class PassSum:
     rep_sum: np.ndarray | None = None  # (R, H, W, 3) float64: the path tracer's sum per replicate
     rep_passes: np.ndarray | None = None  # (R,) int: passes per replicate
     estimator: str = "passes"
+    m2_sum: np.ndarray | None = None  # (H, W, 3) float64: sum of squared per-sample XYZ (moment integrator only)
 
     def __add__(self, other: "PassSum") -> "PassSum":
         def add(a, b):
@@ -77,13 +83,23 @@ class PassSum:
         return PassSum(self.sum + other.sum, self.sum_sq + other.sum_sq, self.passes + other.passes,
                        self.discarded + other.discarded, self.seconds + other.seconds, self.rays + other.rays,
                        add(self.lt_sum, other.lt_sum), add(self.lt_sum_sq, other.lt_sum_sq),
-                       add(self.rep_sum, other.rep_sum), add(self.rep_passes, other.rep_passes), self.estimator)
+                       add(self.rep_sum, other.rep_sum), add(self.rep_passes, other.rep_passes), self.estimator,
+                       add(self.m2_sum, other.m2_sum))
 
     @property
     def mean(self) -> np.ndarray:
         """Linear radiance, float32 (H, W, 3)."""
         total = self.sum if self.lt_sum is None else self.sum + self.lt_sum
         return (total / max(self.passes, 1)).astype(np.float32)
+
+    def layers(self, names: tuple[str, ...]) -> dict[str, np.ndarray]:
+        """Mitsuba's moment layers, float32 (H, W, 3) each: ``names[0]`` the mean XYZ of the samples, ``names[1]``
+        the mean of their squares (``Integrator.layer_names``); empty when none were summed."""
+        if self.m2_sum is None or not names:
+            return {}
+        n = max(self.passes, 1)
+        xyz = (self.sum / n) @ SRGB_TO_XYZ.T
+        return {names[0]: xyz.astype(np.float32), names[1]: (self.m2_sum / n).astype(np.float32)}
 
     @staticmethod
     def _var_of_mean(total: np.ndarray, total_sq: np.ndarray, n: int) -> np.ndarray:
@@ -247,7 +263,7 @@ class Renderer:
         # the light tracer starts on parallelogram lights only and splats each light path into the one pixel it
         # lands in (a box filter's film) through a pinhole; it knows diffuse surfaces and mirrors only
         possible = (not (self.features.pixel_filter or self.features.thin_lens or self.features.other_materials
-                         or self.features.textures)
+                         or self.features.textures or self.features.moments)
                     and self.scene.only_rect_lights
                     and self.features.mirrors and self.features.lights and self.view == "radiance"
                     and (self.max_depth < 0 or self.max_depth >= 3))
@@ -295,6 +311,7 @@ class Renderer:
             accum = wp.zeros(npix, dtype=wp.vec3d)
             accum_sq = wp.zeros(npix, dtype=wp.vec3d)
             accum_rep = wp.zeros(self.replicates * npix, dtype=wp.vec3d)
+            accum_m2 = wp.zeros(npix if self.features.moments else 1, dtype=wp.vec3d)
             discarded = wp.zeros(tiles, dtype=wp.int32)  # one counter per tile
             rays = wp.zeros(tiles, dtype=wp.int64)
             lt = None
@@ -321,7 +338,7 @@ class Renderer:
         # one recorded launch per tile: later launches only swap the pass parameters (cheaper than wp.launch)
         cmds = [wp.launch(self.kernel, dim=rows_of[t] * s.width,
                           inputs=[self.dscene.data, self.dscene.camera, params(t, first_pass)],
-                          outputs=[accum, accum_sq, accum_rep, discarded, rays], device=self.device,
+                          outputs=[accum, accum_sq, accum_rep, accum_m2, discarded, rays], device=self.device,
                           record_cmd=True)
                 for t in range(tiles)]
 
@@ -374,13 +391,13 @@ class Renderer:
                         bar.update(n)
                     if callback is not None:
                         wp.synchronize_device(self.device)
-                        if callback(first + n - 1, self._sums(accum, accum_sq, accum_rep, discarded, rays, first_pass, done, t0, lt)) is False:
+                        if callback(first + n - 1, self._sums(accum, accum_sq, accum_rep, accum_m2, discarded, rays, first_pass, done, t0, lt)) is False:
                             break
             wp.synchronize_device(self.device)
         finally:
             if bar is not None:
                 bar.close()
-        return self._sums(accum, accum_sq, accum_rep, discarded, rays, first_pass, done, t0, lt)
+        return self._sums(accum, accum_sq, accum_rep, accum_m2, discarded, rays, first_pass, done, t0, lt)
 
     def _tiles(self) -> int:
         """Row sets the image is split into: one per thread would leave a core idle whenever the other thread runs
@@ -480,7 +497,7 @@ class Renderer:
             raise
         return passes_before[-1]
 
-    def _sums(self, accum, accum_sq, accum_rep, discarded, rays, first: int, done: int, t0: float,
+    def _sums(self, accum, accum_sq, accum_rep, accum_m2, discarded, rays, first: int, done: int, t0: float,
               lt=None) -> PassSum:
         s = self.scene
         shape = (s.height, s.width, 3)
@@ -491,6 +508,8 @@ class Renderer:
                        rep_sum=accum_rep.numpy().reshape((R,) + shape).copy(),
                        rep_passes=np.bincount(passes % R, minlength=R),
                        estimator="replicates" if self.sampler == "sobol" else "passes")
+        if self.features.moments:
+            sums.m2_sum = accum_m2.numpy().reshape(shape).copy()
         if lt is not None:
             sums.lt_sum = lt["sum"].numpy().reshape(shape).copy()
             sums.lt_sum_sq = lt["sum_sq"].numpy().reshape(shape).copy()
@@ -520,6 +539,7 @@ def render(
     progress: bool = True,
     callback: Callable[[int, PassSum], object] | None = None,
     stats: dict | None = None,
+    layers: dict | None = None,
 ) -> np.ndarray:
     """Render ``scene``; returns linear radiance, float32 (H, W, 3).
 
@@ -543,6 +563,8 @@ def render(
     relmse_estimate (the image's estimated relMSE, ``PassSum.relmse_estimate``), discarded, config (the estimator
     used, and the pilot's figures when "auto" ran one), threads, device, roulette_warning (None, or why the seed
     roulette rule has an infinite variance on this scene).
+    layers, if given, receives the extra image layers of the scene's integrator (Mitsuba's moment integrator: the
+    nested one's mean XYZ and per-sample second moment, ``Integrator.layer_names``), float32 (H, W, 3) each.
     """
     t_wall = time.perf_counter()
     spp = scene.spp if spp is None else spp
@@ -571,6 +593,8 @@ def render(
         result = r.render_passes(seed=seed, first_pass=0, count=spp, progress=progress, callback=callback)
         config_extra = {"light_tracing": r.light_tracing}
     r.close()
+    if layers is not None:
+        layers.update(result.layers(scene.integrator.layer_names))
     if result.discarded:
         warnings.warn(f"{scene.source}: {result.discarded} non-finite samples were discarded", RuntimeWarning,
                       stacklevel=2)

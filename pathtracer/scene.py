@@ -281,7 +281,7 @@ class EnvMap:
 @dataclass
 class Integrator:
     """Mitsuba's ``path`` integrator parameters (its ``direct`` is ``path`` with max_depth 2: the same paths and
-    MIS, equal in expectation).
+    MIS, equal in expectation), possibly nested in its ``moment`` integrator.
 
     max_depth: longest path in segments; -1 unlimited, 1 = emitters seen directly, 2 = direct lighting.
     rr_depth: depth at which throughput-based Russian roulette starts.
@@ -294,6 +294,13 @@ class Integrator:
     hide_emitters: bool = False
     kind: str = "path"
     light_samples: int | None = None
+    moment: str | None = None  # Mitsuba's moment integrator around this one: the nested integrator's name
+
+    @property
+    def layer_names(self) -> tuple[str, ...]:
+        """The extra image layers this integrator writes, as Mitsuba names them: the nested integrator's mean XYZ
+        and its per-sample second moment (m2_ prefix), channels X, Y, Z each."""
+        return () if self.moment is None else (self.moment, "m2_" + self.moment)
 
 
 @dataclass

@@ -506,3 +506,22 @@ def test_bad_scene_files_fail_in_one_line_and_write_nothing(tmp_path, case, caps
     assert "bad.xml" in lines[0], lines[0]
     assert re.search(pattern, lines[0], re.I), lines[0]
     assert not out.exists() and not [p for p in os.listdir(tmp_path) if p.startswith(".out")]
+
+
+def test_moment_integrator_layers_go_to_the_exr(tmp_path):
+    """A moment scene's EXR holds the image and the nested integrator's layers (Mitsuba's channel names); a PNG
+    holds the image, and a note says where the layers would have gone."""
+    scene = ROOT / "scenes" / "features" / "integrator_moment.xml"
+    exr = tmp_path / "m.exr"
+    r = run_cli(scene, "--spp", "4", "-o", exr, "--no-progress")
+    assert r.returncode == 0, r.stderr
+    layers = pathtracer.read_layers(exr)
+    assert sorted(layers) == ["m2_path", "path"]
+    img = pathtracer.read_image(exr)
+    y = img @ np.array([0.212671, 0.715160, 0.072169])
+    np.testing.assert_allclose(layers["path"][..., 1], y, rtol=1e-5, atol=1e-7)  # the mean's Y is the image's
+    assert np.all(layers["m2_path"][..., 1] >= layers["path"][..., 1] ** 2 * (1 - 1e-5))  # E[Y^2] >= E[Y]^2
+    png = tmp_path / "m.png"
+    r = run_cli(scene, "--spp", "4", "-o", png, "--no-progress")
+    assert r.returncode == 0 and png.exists()
+    assert any("go to .exr files only" in line for line in stderr_lines(r.stderr)), r.stderr

@@ -275,3 +275,38 @@ def test_display_colours_are_stored_without_the_srgb_curve(tmp_path):
     np.testing.assert_array_equal(got[0], np.floor(img[0] * 255 + 0.5).astype(int))
     imageio.write_image(tmp_path / "debug.exr", img, display=True)  # EXR keeps the values as given
     np.testing.assert_array_equal(imageio.read_image(tmp_path / "debug.exr"), img)
+
+
+def test_layers_round_trip_in_exr_channels(tmp_path):
+    """Layers go beside R, G, B as <name>.X/.Y/.Z (Mitsuba's moment output layout) and come back equal."""
+    import OpenEXR
+
+    rng = np.random.default_rng(3)
+    img = rng.random((5, 7, 3), dtype=np.float32)
+    layers = {"path": rng.random((5, 7, 3), dtype=np.float32), "m2_path": rng.random((5, 7, 3), dtype=np.float32)}
+    p = tmp_path / "m.exr"
+    write_image(p, img, layers=layers)
+    with OpenEXR.File(str(p), separate_channels=True) as f:
+        names = set(f.channels())
+    assert names == {"R", "G", "B", "path.X", "path.Y", "path.Z", "m2_path.X", "m2_path.Y", "m2_path.Z"}
+    back = imageio.read_layers(p)
+    assert sorted(back) == sorted(layers)
+    for k in layers:
+        np.testing.assert_array_equal(back[k], layers[k])
+    np.testing.assert_array_equal(read_image(p), img)
+    assert imageio.read_layers(tmp_path / "m.exr") and not imageio.read_layers(_plain(tmp_path, img))
+
+
+def _plain(tmp_path, img):
+    p = tmp_path / "plain.exr"
+    write_image(p, img)
+    return p
+
+
+def test_layers_need_exr_and_the_image_shape(tmp_path):
+    img = np.zeros((4, 4, 3), np.float32)
+    with pytest.raises(ImageIOError, match=r"need an \.exr file"):
+        write_image(tmp_path / "a.png", img, layers={"x": img})
+    with pytest.raises(ImageIOError, match="layer 'x' has shape"):
+        write_image(tmp_path / "a.exr", img, layers={"x": np.zeros((4, 5, 3))})
+    assert not list(tmp_path.iterdir())  # nothing left behind

@@ -611,6 +611,17 @@ BAD_XML = [
     ('<shape type="sphere"><rgb name="center" value="1 2 3"/></shape>', '<rgb name="center">', "must be a point"),
     ('<shape type="sphere"><boolean name="flip_normals" value="true"/></shape>', '<boolean name="flip_normals">',
      "flip_normals=true is not supported"),
+    ('<shape type="cylinder"><float name="radius" value="-0.5"/></shape>', '<float name="radius">',
+     "radius must be > 0"),
+    ('<shape type="cylinder"><point name="p0" value="1, 2, 3"/><point name="p1" value="1, 2, 3"/></shape>',
+     '<point name="p1">', "p0 and p1 must differ"),
+    ('<shape type="disk"><transform name="to_world"><scale z="0"/></transform></shape>', '<transform name="to_world">',
+     "to_world is singular"),
+    ('<integrator type="moment"/>', '<integrator type="moment">', "needs a nested integrator"),
+    ('<integrator type="moment"><integrator type="path"/><integrator type="direct"/></integrator>',
+     '<integrator type="direct">', "only one integrator inside moment"),
+    ('<integrator type="moment"><integrator type="moment"><integrator type="path"/></integrator></integrator>',
+     '<integrator type="moment">', "cannot nest another moment"),
     ('<shape type="sphere"><transform name="to_world"><scale x="2"/></transform></shape>', '<transform name="to_world">',
      "may only translate, rotate and scale uniformly"),
     ('<shape type="sphere"><transform name="to_world"><scale value="-1"/></transform></shape>',
@@ -675,8 +686,9 @@ BAD_XML = [
     ('<shape type="rectangle"><translate value="1"/></shape>', "<translate>", "can only appear inside a <transform>"),
     ('<shape type="rectangle"><transform name="toWorld"/></shape>', '<shape type="rectangle">',
      'property "toWorld" is not supported'),
-    ('<shape type="torus"/>', '<shape type="torus">', 'shape type "torus" is not supported (supported: cube, obj'),
-    ('<shape type="disk"/>', '<shape type="disk">', 'shape type "disk" is not supported'),
+    ('<shape type="torus"/>', '<shape type="torus">',
+     'shape type "torus" is not supported (supported: cube, cylinder, disk, obj'),
+    ('<shape type="shapegroup"/>', '<shape type="shapegroup">', 'shape type "shapegroup" is not supported'),
     ('<shape/>', "<shape>", 'missing required attribute "type"'),
     ('<shape type="sphere" foo="1"/>', '<shape type="sphere">', 'unexpected attribute "foo"'),
     ('<shape type="sphere"><foo/></shape>', "<foo>", "unknown element <foo>"),
@@ -740,7 +752,7 @@ BAD_XML = [
      "cannot be nested in a twosided"),
     ('<film type="hdrfilm"/>', '<film type="hdrfilm">', "must be nested in the sensor"),
     ('<integrator type="volpath"/>', '<integrator type="volpath">', 'integrator type "volpath" is not supported '
-                                                                   '(supported: direct, path)'),
+                                                                   '(supported: direct, moment, path)'),
     ('<integrator type="direct"><integer name="emitter_samples" value="0"/></integrator>',
      '<integer name="emitter_samples">', "emitter_samples must be > 0"),
     ('<integrator type="direct"><integer name="shading_samples" value="2"/><integer name="bsdf_samples" value="1"/>'
@@ -1027,7 +1039,8 @@ FUZZ_BASE = f"""<scene version="3.0.0">
 # the elements of issue 10 (Mitsuba scenes in the wild): every bsdf, texture, emitter and integrator it added
 FUZZ_BASE_FEATURES = f"""<scene version="3.0.0">
     <default name="spp" value="4"/>
-    <integrator type="direct"><integer name="emitter_samples" value="1"/></integrator>
+    <integrator type="moment"><integrator type="direct" name="d"><integer name="emitter_samples" value="1"/></integrator>
+        </integrator>
     <sensor type="thinlens">
         <float name="fov" value="45"/><float name="aperture_radius" value="0.05"/><float name="focus_distance" value="5"/>
         <transform name="to_world"><lookat origin="0, 0, 7" target="0, 0, 4" up="0, 1, 0"/></transform>
@@ -1057,6 +1070,10 @@ FUZZ_BASE_FEATURES = f"""<scene version="3.0.0">
         <string name="distribution" value="ggx"/></bsdf></shape>
     <shape type="serialized"><string name="filename" value="{ROOT / 'scenes' / 'features' / 'maps' / 'two_meshes.serialized'}"/>
         <integer name="shape_index" value="1"/></shape>
+    <shape type="disk"><boolean name="flip_normals" value="true"/><transform name="to_world"><scale x="2" y="0.5"/>
+        <translate y="3"/></transform><emitter type="area"><rgb name="radiance" value="3"/></emitter></shape>
+    <shape type="cylinder"><point name="p0" value="-1, -1, 0"/><point name="p1" value="1, -1, 0"/>
+        <float name="radius" value="0.1"/><bsdf type="diffuse"/></shape>
 </scene>
 """
 
@@ -1141,6 +1158,8 @@ def test_fuzz_mutated_feature_scenes_raise_only_scene_errors(tmp_path_factory, d
 def test_fuzz_feature_base_scene_loads(tmp_path):
     s = load_file(write(tmp_path, FUZZ_BASE_FEATURES))
     assert len(s.textures) == 2 and s.envmap is not None and s.integrator.kind == "direct"
+    assert s.integrator.layer_names == ("d", "m2_d")
+    assert {m.name for m in s.meshes} >= {"disk", "cylinder"} and len(s.mesh_lights) == 1
     assert {m.kind for m in s.materials} >= {"plastic", "dielectric", "roughconductor", "conductor", "thindielectric",
                                              "roughplastic"}
 
@@ -1252,3 +1271,71 @@ def test_serialized_meshes_and_their_errors(tmp_path):
             load_xml(tmp_path, f'<shape type="serialized"><string name="filename" value="{f}"/>'
                                f'<integer name="shape_index" value="{index}"/></shape>')
         assert problem in str(e.value) and "\n" not in str(e.value), str(e.value)
+
+
+# --- disk and cylinder (pathtracer/tessellate.py) ------------------------------------------------------------------
+
+def test_tessellated_disk_and_cylinder_keep_area_and_outline():
+    from pathtracer import tessellate
+
+    v, f = tessellate.disk()
+    tri = v[f]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    assert np.all(cross[:, 2] > 0)  # wound counter-clockwise seen from +z
+    assert abs(cross[:, 2].sum() / 2 - np.pi) < 1e-12  # the disk's area
+    r = np.linalg.norm(v[:, :2], axis=1)
+    assert r.max() - 1 <= tessellate.outline_error(tessellate.disk_area_scale()) + 1e-15
+    assert np.bincount(f.ravel()).max() <= 8  # no fan: at most eight triangles around a vertex
+    v, f, n = tessellate.cylinder()
+    tri = v[f]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    assert np.all(np.einsum("ij,ij->i", cross, tri.mean(axis=1) * [1, 1, 0]) > 0)  # outwards
+    assert abs(np.linalg.norm(cross, axis=1).sum() / 2 - 2 * np.pi) < 1e-9  # the lateral area 2 pi r h
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0)
+    assert tessellate.outline_error(tessellate.cylinder_perimeter_scale()) < 3.2e-6
+
+
+def test_cylinder_placement_and_flip_normals_as_mitsuba(tmp_path):
+    """p0, p1 and radius place the prism around the axis from p0 to p1 (Mitsuba: to_world @ translate(p0) @
+    to_frame(axis) @ scale(radius, radius, length)); flip_normals turns normals and winding inwards."""
+    body = ('<shape type="cylinder" id="c"><point name="p0" value="1, 2, 3"/><point name="p1" value="1, 5, 7"/>'
+            '<float name="radius" value="0.25"/>{}</shape>')
+    for flip in (False, True):
+        extra = '<boolean name="flip_normals" value="true"/>' if flip else ""
+        s = load_file(write(tmp_path, scene_xml(body.format(extra))))
+        m = [m for m in s.meshes if m.name == "c"][0]
+        p0, axis = np.array([1, 2, 3.0]), np.array([0, 3, 4.0]) / 5
+        rel = m.vertices - p0
+        along = rel @ axis
+        assert np.allclose(sorted(set(np.round(along, 9))), [0, 5])
+        radial = rel - np.outer(along, axis)
+        dist = np.linalg.norm(radial, axis=1)
+        assert np.allclose(dist, 0.25, rtol=1e-5)
+        outward = np.einsum("ij,ij->i", m.normals, radial / dist[:, None])
+        assert np.allclose(outward, -1.0 if flip else 1.0)
+        tri = m.vertices[m.faces]
+        wind = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        mid = tri.mean(axis=1) - p0
+        side = np.einsum("ij,ij->i", wind, mid - np.outer(mid @ axis, axis))
+        assert np.all(side < 0) if flip else np.all(side > 0)
+
+
+def test_disk_light_faces_where_mitsuba_says(tmp_path):
+    """An emitting disk is a mesh light whose winding gives Mitsuba's normal: to_world's normal transform of +z,
+    turned by flip_normals, and unchanged in sense by a mirroring to_world."""
+    for transform, flip, expect in [("", False, [0, 0, 1]), ("", True, [0, 0, -1]),
+                                    ('<transform name="to_world"><scale z="-1"/></transform>', False, [0, 0, -1]),
+                                    ('<transform name="to_world"><scale x="-1"/></transform>', False, [0, 0, 1]),
+                                    ('<transform name="to_world"><rotate x="1" angle="90"/></transform>', False,
+                                     [0, -1, 0])]:
+        extra = '<boolean name="flip_normals" value="true"/>' if flip else ""
+        body = (f'<shape type="disk" id="d">{transform}{extra}<emitter type="area"><rgb name="radiance" value="1"/>'
+                f'</emitter></shape>')
+        s = load_file(write(tmp_path, scene_xml(body)))
+        m = s.meshes[s.mesh_lights[0].mesh]
+        tri = m.vertices[m.faces]
+        wind = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        wind /= np.linalg.norm(wind, axis=1)[:, None]
+        np.testing.assert_allclose(wind, np.broadcast_to(expect, wind.shape), atol=1e-9)
+        assert abs(np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum() / 2
+                   - np.pi) < 1e-9

@@ -75,6 +75,18 @@ def test_agrees_with_mitsuba_reference(device, name, light_tracing, triangles):
     if triangles:
         name = f"{name} ({triangles} triangles)"
 
+    heavy_tailed = scene.has_delta_bsdf and (depth == -1 or depth > 2)  # light tracing or not: the reference's are
+    # a wide filter's tails are rare events for filter importance sampling (a pixel 1.4 px from a light's edge sees
+    # it once in ~1e6 samples: 2048 samples mostly miss it, and the batch variance cannot see what they missed);
+    # Mitsuba splats every sample with a tiny weight there. The image-wide checks decide (a box filter instead of
+    # the scene's fails them by a factor of 200-3000)
+    heavy_tailed = heavy_tailed or not scene.rfilter.is_box
+    assert_agrees(name, ours, var, imgs, ref, ref_var, heavy_tailed)
+
+
+def assert_agrees(name: str, ours, var, imgs, ref, ref_var, heavy_tailed: bool) -> None:
+    """Our batch mean (variance ``var`` of the mean, batch images ``imgs``) against a Mitsuba reference: exact on
+    noiseless pixels, per pixel within T_MAX unless ``heavy_tailed``, and image-wide (relMSE, image mean)."""
     var_sum = var + ref_var
     diff = ours - ref
     noisy = var_sum > 0
@@ -89,12 +101,6 @@ def test_agrees_with_mitsuba_reference(device, name, light_tracing, triangles):
     rounding = 1e-5 * (1 + np.abs(ref)) + n_summed * 2.0**-24 * np.abs(ref)
     t = diff[noisy] / np.sqrt(var_sum[noisy] + rounding[noisy] ** 2)
     pass_rate = float(np.mean(np.abs(t) <= T_MAX))
-    heavy_tailed = scene.has_delta_bsdf and (depth == -1 or depth > 2)  # light tracing or not: the reference's are
-    # a wide filter's tails are rare events for filter importance sampling (a pixel 1.4 px from a light's edge sees
-    # it once in ~1e6 samples: 2048 samples mostly miss it, and the batch variance cannot see what they missed);
-    # Mitsuba splats every sample with a tiny weight there. The image-wide checks decide (a box filter instead of
-    # the scene's fails them by a factor of 200-3000)
-    heavy_tailed = heavy_tailed or not scene.rfilter.is_box
 
     denom = ref * ref + 0.01
     rel_mse = float(np.mean(diff**2 / denom))
@@ -144,3 +150,26 @@ def test_filter_reference_sees_the_filter():
     ours, var, _ = batch_stats(boxed, "cpu", scene.integrator.max_depth)
     denom = ref * ref + 0.01
     assert np.mean((ours - ref) ** 2 / denom) > 10 * np.mean((var + ref_var) / denom)
+
+
+@pytest.mark.slow
+def test_moment_layers_agree_with_mitsuba():
+    """The moment integrator's layers (the nested path tracer's mean XYZ and the mean of its samples' squared XYZ)
+    against Mitsuba's on a scene where both estimators draw the same samples (one point light, diffuse surfaces,
+    no roulette), so even the second moment is the same in expectation; and the image as for every reference."""
+    name = "feature_integrator_moment"
+    info = META["refs"][name]
+    scene = pathtracer.load_file(Path(__file__).parents[1] / info["scene"], width=META["width"],
+                                 height=META["height"])
+    names = scene.integrator.layer_names
+    assert names == ("path", "m2_path")
+    ref_layers = pathtracer.read_layers(REFS / f"{name}.exr")
+    ref_vars = pathtracer.read_layers(REFS / f"{name}_var.exr")
+    assert sorted(ref_layers) == sorted(names)
+    r = pathtracer.Renderer(scene, device="cpu")
+    batches = [r.render_passes(seed=s, count=SPP).layers(names) for s in range(B)]
+    for layer in names:
+        imgs = np.stack([b[layer].astype(np.float64) for b in batches])
+        ours, var = imgs.mean(axis=0), imgs.var(axis=0, ddof=1) / B
+        assert_agrees(f"{name} layer {layer}", ours, var, imgs, ref_layers[layer].astype(np.float64),
+                      ref_vars[layer].astype(np.float64), heavy_tailed=False)
