@@ -15,17 +15,18 @@ import numpy as np
 
 from pathtracer.errors import ImageIOError
 
-SUPPORTED_EXTENSIONS = (".exr", ".png")
+SUPPORTED_EXTENSIONS = (".exr", ".png")  # what we write
+READ_EXTENSIONS = SUPPORTED_EXTENSIONS + (".jpg", ".jpeg")  # what we read (JPEG textures, decoded as PNG is)
 LAYER_CHANNELS = "XYZ"
 
 
-def _extension(path: str | os.PathLike) -> str:
+def _extension(path: str | os.PathLike, allowed: tuple = SUPPORTED_EXTENSIONS) -> str:
     ext = os.path.splitext(os.fspath(path))[1].lower()
-    if ext not in SUPPORTED_EXTENSIONS:
+    if ext not in allowed:
         shown = ext if ext else "no extension"
         raise ImageIOError(
             f"{os.fspath(path)}: unsupported image format ({shown}); supported: "
-            + ", ".join(SUPPORTED_EXTENSIONS)
+            + ", ".join(allowed)
         )
     return ext
 
@@ -142,9 +143,9 @@ def write_image(path: str | os.PathLike, image: np.ndarray, *, display: bool = F
 
 
 def read_image(path: str | os.PathLike) -> np.ndarray:
-    """Read an image as linear float32 (H, W, 3): EXR as stored, PNG decoded through inverse sRGB."""
+    """Read an image as linear float32 (H, W, 3): EXR as stored, PNG and JPEG decoded through inverse sRGB."""
     path = os.fspath(path)
-    ext = _extension(path)
+    ext = _extension(path, READ_EXTENSIONS)
     try:
         with open(path, "rb"):  # a clean OS reason (and no C-library noise) for missing files
             pass

@@ -43,7 +43,7 @@ bsdf        roughplastic the same, distribution (beckmann | ggx), alpha (0.1; >=
 bsdf        twosided     exactly one nested bsdf (one-sided ones then reflect on both sides)
 texture     checkerboard color0 (0.4), color1 (0.2), to_uv; on reflectance, diffuse_reflectance or
                          specular_reflectance of spheres, rectangles and cubes (Mitsuba's uv)
-texture     bitmap       filename (OpenEXR, or PNG read as sRGB), filter_type (bilinear | nearest),
+texture     bitmap       filename (OpenEXR, or PNG or JPEG read as sRGB), filter_type (bilinear | nearest),
                          wrap_mode (repeat | mirror | clamp), to_uv, format and accel (storage only);
                          raw=true is refused; values in [0, 1]
 shape       sphere       center (0), radius (1; > 0), to_world (translation, rotation and uniform
@@ -919,8 +919,9 @@ class _Builder:
             if fmt not in ("auto", "variant", "float16", "uint8"):
                 self.fail(w("format"), f'unknown format "{fmt}" (supported: auto, variant, float16, uint8)')
             self.value(node, path, props, "accel", BOOL, True)
-            if os.path.splitext(filename)[1].lower() not in (".exr", ".png"):
-                self.fail(w("filename"), f'bitmap "{filename}": only OpenEXR (.exr) and PNG images are supported')
+            if os.path.splitext(filename)[1].lower() not in imageio.READ_EXTENSIONS:
+                self.fail(w("filename"), f'bitmap "{filename}": only OpenEXR (.exr), PNG and JPEG images are '
+                                         f'supported')
             file = resolve_file(filename, self.search_paths)
             try:
                 img = imageio.read_image(file)

@@ -83,7 +83,7 @@ def test_texture_errors_are_one_line(tmp_path):
     cases = [
         ({"type": "bitmap", "filename": str(tmp_path / "missing.png")}, "cannot read"),
         ({"type": "bitmap"}, 'bitmap needs "filename"'),
-        ({"type": "bitmap", "filename": "x.jpg"}, "only OpenEXR (.exr) and PNG"),
+        ({"type": "bitmap", "filename": "x.tga"}, "only OpenEXR (.exr), PNG and JPEG"),
         ({"type": "bitmap", "filename": "x.png", "wrap_mode": "tile"}, 'unknown wrap_mode "tile"'),
         ({"type": "checkerboard", "color0": 2.0}, "color0 must lie in [0, 1]"),
     ]
@@ -96,3 +96,18 @@ def test_texture_errors_are_one_line(tmp_path):
                       "bsdf": {"type": "diffuse", "reflectance": {"type": "checkerboard"}}})
     with pytest.raises(SceneError, match="textured bsdf on a obj is not supported yet"):
         load_dict(d)
+
+
+def test_jpeg_bitmaps_read_as_srgb_like_png(tmp_path):
+    """A JPEG texture (4 of 25 public scenes use one) is decoded to 8 bits and read as sRGB, as Mitsuba reads 8-bit
+    images: flat 8x8 blocks of 128 come back as Mitsuba's 0.215861 (JPEG is exact on a flat block)."""
+    img = np.full((16, 16, 3), 128, np.uint8)
+    img[:8, :8] = (200, 60, 30)
+    Image.fromarray(img).save(tmp_path / "t.jpg", quality=100)
+    s = scene_with(tmp_path, {"j": {"type": "bitmap", "filename": str(tmp_path / "t.jpg"),
+                                    "filter_type": "nearest"}}, {})
+    _, val = probe(s, tex=[0, 0], uv=[(0.75, 0.75), (0.25, 0.25)])
+    assert np.allclose(val[0], 0.215861, atol=1e-5)
+    decoded = np.asarray(Image.open(tmp_path / "t.jpg").convert("RGB"), dtype=np.float64)[4, 4] / 255.0
+    assert np.allclose(val[1], np.where(decoded <= 0.04045, decoded / 12.92, ((decoded + 0.055) / 1.055) ** 2.4),
+                       atol=1e-6)
