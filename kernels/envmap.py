@@ -14,6 +14,7 @@ radiance is gives the same image; this one only decides the noise.
 import warp as wp
 
 from kernels.sampling import pick_in_cdf
+from kernels.textures import bilinear
 from kernels.types import SceneData
 
 
@@ -53,9 +54,8 @@ def env_eval(scene: SceneData, d: wp.vec3) -> wp.vec3:
     fy = y - y0
     ix = int(x0)
     iy = int(y0)
-    top = (1.0 - fx) * env_texel(scene, ix, iy) + fx * env_texel(scene, ix + 1, iy)
-    bottom = (1.0 - fx) * env_texel(scene, ix, iy + 1) + fx * env_texel(scene, ix + 1, iy + 1)
-    return ((1.0 - fy) * top + fy * bottom) * scene.env_scale
+    return bilinear(env_texel(scene, ix, iy), env_texel(scene, ix + 1, iy), env_texel(scene, ix, iy + 1),
+                    env_texel(scene, ix + 1, iy + 1), fx, fy) * scene.env_scale
 
 
 @wp.func

@@ -16,6 +16,15 @@ from kernels.types import Hit, SceneData
 
 
 @wp.func
+def bilinear(c00: wp.vec3, c10: wp.vec3, c01: wp.vec3, c11: wp.vec3, fx: float, fy: float) -> wp.vec3:
+    """Blend of four texels (cxy: x, y offsets 0 or 1) at fractions fx, fy: along x first, as Mitsuba's bitmap
+    and envmap lookups (each caller fetches its own texels with its own wrap rule)."""
+    top = (1.0 - fx) * c00 + fx * c10
+    bottom = (1.0 - fx) * c01 + fx * c11
+    return (1.0 - fy) * top + fy * bottom
+
+
+@wp.func
 def surface_uv(scene: SceneData, hit: Hit) -> wp.vec2:
     """Texture coordinates at a hit on a quad or a sphere (triangle meshes have none here)."""
     if hit.quad >= 0:
@@ -85,6 +94,5 @@ def texture_eval(scene: SceneData, t: int, uv: wp.vec2) -> wp.vec3:
     fy = y - y0
     ix = int(x0)
     iy = int(y0)
-    top = (1.0 - fx) * texel(scene, t, ix, iy) + fx * texel(scene, t, ix + 1, iy)
-    bottom = (1.0 - fx) * texel(scene, t, ix, iy + 1) + fx * texel(scene, t, ix + 1, iy + 1)
-    return (1.0 - fy) * top + fy * bottom
+    return bilinear(texel(scene, t, ix, iy), texel(scene, t, ix + 1, iy), texel(scene, t, ix, iy + 1),
+                    texel(scene, t, ix + 1, iy + 1), fx, fy)
