@@ -29,20 +29,24 @@ def sky_sun(width: int = 64, height: int = 32) -> np.ndarray:
 
 def write_serialized(path: Path, meshes: list, version: int = 4) -> None:
     """Mitsuba's serialized format (src/shapes/serialized.cpp): per mesh the header and a zlib stream (flags, name,
-    counts, float32 positions, optional normals, uint32 indices), then the meshes' offsets and their count."""
+    counts, float32 positions, optional normals and texture coordinates, uint32 indices), then the meshes' offsets
+    and their count. ``meshes``: (name, vertices, faces, normals or None[, uv or None])."""
     import struct
     import zlib
 
     out, offsets = bytearray(), []
-    for name, v, f, n in meshes:
+    for name, v, f, n, *rest in meshes:
+        uv = rest[0] if rest else None
         offsets.append(len(out))
-        flags = 0x1000 | (0x0001 if n is not None else 0)
+        flags = 0x1000 | (0x0001 if n is not None else 0) | (0x0002 if uv is not None else 0)
         body = struct.pack("<I", flags)
         if version == 4:
             body += name.encode() + b"\0"
         body += struct.pack("<QQ", len(v), len(f)) + np.asarray(v, "<f4").tobytes()
         if n is not None:
             body += np.asarray(n, "<f4").tobytes()
+        if uv is not None:
+            body += np.asarray(uv, "<f4").tobytes()
         body += np.asarray(f, "<u4").tobytes()
         out += struct.pack("<hh", 0x041C, version) + zlib.compress(body)
     fmt = "<Q" if version == 4 else "<I"
@@ -58,6 +62,58 @@ def tiles(width: int = 8, height: int = 6) -> np.ndarray:
     img = np.stack([40 + 200 * (x % 2), 60 + 30 * y, 220 - 25 * x], -1)
     img[0, 0] = (255, 255, 0)  # the top-left texel: v = 0, u = 0 in Mitsuba's convention
     return img.astype(np.uint8)
+
+
+def uv_sphere_obj(n_phi: int = 24, n_theta: int = 12) -> str:
+    """A unit sphere as an OBJ with its own texture coordinates (u = phi / 2 pi, v = theta / pi as written, so
+    flip_tex_coords matters) and normals: the seam at phi = 0 shares positions but not vt indices, so it is split
+    into two vertices there, as Mitsuba and trimesh both do."""
+    lines = ["# uv sphere: written by examples/make_feature_maps.py"]
+    for j in range(n_theta + 1):
+        for i in range(n_phi + 1):
+            th, ph = np.pi * j / n_theta, 2 * np.pi * (i % n_phi) / n_phi
+            x, y, z = np.sin(th) * np.cos(ph), np.cos(th), np.sin(th) * np.sin(ph)
+            if i < n_phi:
+                lines.append(f"v {x:.6f} {y:.6f} {z:.6f}")
+                lines.append(f"vn {x:.6f} {y:.6f} {z:.6f}")
+    for j in range(n_theta + 1):
+        for i in range(n_phi + 1):
+            lines.append(f"vt {i / n_phi:.6f} {j / n_theta:.6f}")
+
+    def corner(i, j):
+        v = j * n_phi + (i % n_phi) + 1
+        return f"{v}/{j * (n_phi + 1) + i + 1}/{v}"
+
+    for j in range(n_theta):
+        for i in range(n_phi):
+            a, b, c, d = corner(i, j), corner(i + 1, j), corner(i + 1, j + 1), corner(i, j + 1)
+            if j > 0:
+                lines.append(f"f {a} {b} {c}")
+            if j < n_theta - 1:
+                lines.append(f"f {a} {c} {d}")
+    return "\n".join(lines) + "\n"
+
+
+def wavy_grid(n: int = 12):
+    """A gently curved n x n grid over [-1, 1]^2 in xz with per-vertex uv in [0, 1]^2: (vertices, faces, uv)."""
+    t = np.linspace(-1.0, 1.0, n + 1)
+    x, z = np.meshgrid(t, t)
+    y = 0.15 * np.sin(2.0 * x) * np.cos(1.5 * z)
+    v = np.stack([x, y, z], -1).reshape(-1, 3)
+    uv = np.stack([(x + 1) / 2, (z + 1) / 2], -1).reshape(-1, 2)
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:], idx[1:, :-1]
+    f = np.concatenate([np.stack([a, c, b], -1).reshape(-1, 3), np.stack([a, d, c], -1).reshape(-1, 3)])
+    return v, f, uv
+
+
+def ply_with_uv(v: np.ndarray, f: np.ndarray, uv: np.ndarray) -> str:
+    head = ["ply", "format ascii 1.0", f"element vertex {len(v)}", "property float x", "property float y",
+            "property float z", "property float u", "property float v", f"element face {len(f)}",
+            "property list uchar int vertex_indices", "end_header"]
+    body = [f"{p[0]:.6f} {p[1]:.6f} {p[2]:.6f} {t[0]:.6f} {t[1]:.6f}" for p, t in zip(v, uv)]
+    body += [f"3 {a} {b} {c}" for a, b, c in f]
+    return "\n".join(head + body) + "\n"
 
 
 if __name__ == "__main__":
@@ -79,3 +135,10 @@ if __name__ == "__main__":
     write_serialized(out.parent / "two_meshes.serialized",
                      [tri, ("teapot", part.vertices, part.faces, part.normals)])
     print(f"wrote {out.parent / 'two_meshes.serialized'}")
+    # textured meshes (scenes/features/textures_meshes.xml): an OBJ sphere with vt and a seam, a PLY grid with u, v,
+    # and a serialized grid with texture coordinates
+    (out.parent / "uv_sphere.obj").write_text(uv_sphere_obj())
+    gv, gf, guv = wavy_grid()
+    (out.parent / "uv_grid.ply").write_text(ply_with_uv(gv, gf, guv))
+    write_serialized(out.parent / "uv_grid.serialized", [("grid", gv, gf, None, guv)])
+    print(f"wrote {out.parent / 'uv_sphere.obj'}, uv_grid.ply and uv_grid.serialized")

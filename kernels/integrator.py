@@ -623,7 +623,8 @@ def make_render_kernel(features: Features):
                         for l in range(scene.num_lights):
                             ln = scene.light_normal[l]
                             l_scale = light_sample_scale(scene, l)
-                            Ll = wp.vec3(0.0)
+                            Ll = wp.vec3(0.0)  # sum of f g / (albedo / pi) over the light's samples (with BSDFs)
+                            Ll_cos = float(0.0)  # sum of g (diffuse only: f = albedo / pi, applied once below)
                             for k in range(params.light_samples):
                                 u = wp.static(draw4)(key, dim, depth)
                                 dim += wp.uint32(1)
@@ -659,7 +660,12 @@ def make_render_kernel(features: Features):
                                         g = cos_x * omega
                                     else:
                                         g = cos_x * cos_y / dist2 * scene.light_area[l]
-                                    Ll += nee_weight(scene, params, mat, kind, albedo, d, ns, w, cos_x, g, False) * g
+                                    if wp.static(BSDF_NEE):
+                                        Ll += nee_weight(scene, params, mat, kind, albedo, d, ns, w, cos_x, g, False) * g
+                                    else:
+                                        Ll_cos += g
+                            if wp.static(not BSDF_NEE):
+                                Ll = wp.vec3(Ll_cos)
                             Ld += wp.cw_mul(scene.light_radiance[l], Ll / float(params.light_samples))
                     if wp.static(OTHER_LIGHTS):
                         Ld += other_lights(scene, params, hit, ng, ns, mat, kind, albedo, d, key, dim, depth)

@@ -67,6 +67,8 @@ def mesh_hit(scene: SceneData, o: wp.vec3, d: wp.vec3, q: TriHit) -> Hit:
     h.light = scene.face_light[q.face]
     h.sphere = -1
     h.quad = -1
+    h.face = q.face
+    h.bary = wp.vec2(q.u, q.v)
     return h
 
 

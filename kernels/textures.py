@@ -3,7 +3,8 @@
 
 uv: a rectangle's is ((x + 1) / 2, (y + 1) / 2) in its local [-1, 1]^2, a cube maps each face onto [0, 1]^2 (both
 kept per quad as an affine map of the quad's own coordinates), a sphere's is (phi / 2 pi, theta / pi) in its object
-frame, phi = atan2(y, x) in [0, 2 pi), theta = acos(z).
+frame, phi = atan2(y, x) in [0, 2 pi), theta = acos(z); a triangle's is interpolated from its three corners' (the
+mesh file's texture coordinates, or Mitsuba's barycentric (b1, b2) where it has none).
 
 checkerboard: uv' = to_uv uv; color0 where frac(u') > 0.5 and frac(v') > 0.5 agree, else color1.
 bitmap: uv' = to_uv uv; v' = 0 is the image's first (top) row, no flip; bilinear between texel centres
@@ -26,7 +27,8 @@ def bilinear(c00: wp.vec3, c10: wp.vec3, c01: wp.vec3, c11: wp.vec3, fx: float, 
 
 @wp.func
 def surface_uv(scene: SceneData, hit: Hit) -> wp.vec2:
-    """Texture coordinates at a hit on a quad or a sphere (triangle meshes have none here)."""
+    """Texture coordinates at a hit: on a quad or a sphere from its own map, on a triangle interpolated from its
+    corners' (Mitsuba: uv0 b0 + uv1 b1 + uv2 b2)."""
     if hit.quad >= 0:
         q = hit.quad
         rel = wp.vec3d(hit.p) - scene.quad_center[q]
@@ -41,7 +43,12 @@ def surface_uv(scene: SceneData, hit: Hit) -> wp.vec2:
         if phi < 0.0:
             phi += 2.0 * wp.pi
         return wp.vec2(phi / (2.0 * wp.pi), wp.acos(wp.clamp(local[2], -1.0, 1.0)) / wp.pi)
-    return wp.vec2(0.0, 0.0)
+    f = hit.face
+    if 3 * f + 2 >= scene.corner_uv.shape[0]:
+        return wp.vec2(0.0, 0.0)  # no triangle texture coordinates (no textured mesh)
+    b0 = hit.bary[0]
+    b1 = hit.bary[1]
+    return b0 * scene.corner_uv[3 * f] + b1 * scene.corner_uv[3 * f + 1] + (1.0 - b0 - b1) * scene.corner_uv[3 * f + 2]
 
 
 @wp.func

@@ -39,6 +39,7 @@ class SceneData:
     face_material: wp.array(dtype=wp.int32)
     face_light: wp.array(dtype=wp.int32)  # area light index, -1 if the face does not emit
     corner_normals: wp.array(dtype=wp.vec3)  # 3 per face: shading normals, the face normal on flat faces
+    corner_uv: wp.array(dtype=wp.vec2)  # 3 per face: texture coordinates (with textures only, else empty)
     sphere_center: wp.array(dtype=wp.vec3)
     sphere_radius: wp.array(dtype=float)
     sphere_material: wp.array(dtype=wp.int32)
@@ -157,3 +158,5 @@ class Hit:
     light: int  # -1 if the surface does not emit
     sphere: int  # sphere index, -1 otherwise
     quad: int  # quad index, -1 otherwise
+    face: int  # triangle index on meshes (set only there: sphere and quad both -1 mean a triangle)
+    bary: wp.vec2  # on triangles: the weights of the face's corners 0 and 1 (for texture coordinates)

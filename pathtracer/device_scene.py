@@ -251,11 +251,17 @@ class DeviceScene:
                 else:
                     corner.append(np.repeat(_face_normals(m.vertices, m.faces), 3, axis=0))
             corner_normals = np.concatenate(corner)
+            # texture coordinates per corner, only where a texture reads them (Mitsuba's (0, 0) where a mesh has none)
+            corner_uv = np.zeros((0, 2))
+            if scene.textures:
+                corner_uv = np.concatenate([m.uvs[m.faces].reshape(-1, 2) if m.uvs is not None
+                                            else np.zeros((3 * len(m.faces), 2)) for m in tri])
         else:
             points = np.zeros((0, 3))
             faces = np.zeros((0, 3), dtype=np.int64)
             face_material = face_light = np.zeros(0)
             corner_normals = np.zeros((0, 3))
+            corner_uv = np.zeros((0, 2))
 
         d = SceneData()
         self.triangles = TriangleData(d, points, faces, np.asarray(scene.camera.to_world)[:3, 3], device, triangles,
@@ -264,6 +270,7 @@ class DeviceScene:
         d.face_material = _arr(face_material, wp.int32, device)
         d.face_light = _arr(face_light, wp.int32, device)
         d.corner_normals = _vec3(corner_normals, device)
+        d.corner_uv = wp.array(np.asarray(corner_uv, dtype=np.float32).reshape(-1, 2), dtype=wp.vec2, device=device)
 
         d.sphere_center = _vec3([s.center for s in scene.spheres], device)
         d.sphere_radius = _arr([s.radius for s in scene.spheres], wp.float32, device)

@@ -42,7 +42,9 @@ bsdf        roughplastic the same, distribution (beckmann | ggx), alpha (0.1; >=
                          Mitsuba), sample_visible (noise only)
 bsdf        twosided     exactly one nested bsdf (one-sided ones then reflect on both sides)
 texture     checkerboard color0 (0.4), color1 (0.2), to_uv; on reflectance, diffuse_reflectance or
-                         specular_reflectance of spheres, rectangles and cubes (Mitsuba's uv)
+                         specular_reflectance of spheres, rectangles, cubes and obj, ply and
+                         serialized meshes (Mitsuba's uv; a mesh without texture coordinates gets
+                         each face's barycentric (b1, b2), as in Mitsuba)
 texture     bitmap       filename (OpenEXR, or PNG or JPEG read as sRGB), filter_type (bilinear | nearest),
                          wrap_mode (repeat | mirror | clamp), to_uv, format and accel (storage only);
                          raw=true is refused; values in [0, 1]
@@ -59,8 +61,8 @@ shape       cylinder     p0 (0), p1 (0, 0, 1), radius (1; > 0), to_world, flip_n
 shape       serialized   filename (Mitsuba's compressed format, versions 3 and 4), shape_index (0),
                          face_normals, to_world; normals as the file's, else recomputed as Mitsuba
 shape       obj, ply     filename (relative to the scene file; for load_dict, to the working
-                         directory), face_normals (false), flip_tex_coords (no-op: no textures),
-                         to_world
+                         directory), face_normals (false), flip_tex_coords (v -> 1 - v; true for
+                         obj, false for ply, as Mitsuba 3.9), to_world
 emitter     area         radiance (1.0, >= 0) on any shape, nested or referenced by id (one shape
                          each; an area emitter no shape refers to emits nothing, as in Mitsuba)
 emitter     point        intensity (1.0), position or to_world (translation only)
@@ -1013,9 +1015,9 @@ class _Builder:
             material = DEFAULT_MATERIAL
         mat_index = scene.add_material(material)
         scene.textures = self.textures
-        if material.texture >= 0 and not (t in ("sphere", "rectangle") or (t == "cube" and radiance is None)):
-            self.fail(where, f"a textured bsdf on a {t if t != 'cube' else 'emitting cube'} is not supported yet "
-                             f"(textures work on spheres, rectangles and cubes)")
+        if material.texture >= 0 and t in ("disk", "cylinder"):
+            self.fail(where, f"a textured bsdf on a {t} is not supported yet (textures work on spheres, "
+                             f"rectangles, cubes and obj, ply and serialized meshes)")
         name = node.get("id") if isinstance(node.get("id"), str) else None
         if name is None:
             name = str(key) if not (isinstance(node, XmlDict) or str(key).startswith("_arg_")) else t
@@ -1054,7 +1056,7 @@ class _Builder:
         elif t in ("disk", "cylinder"):
             vertices, faces, normals, m = self.tessellated(node, path, props, m, flip_normals)
         else:
-            vertices, faces, normals = self.mesh_file(node, path, props, m, flip)
+            vertices, faces, normals, file_uv = self.mesh_file(node, path, props, m, flip, material.texture >= 0)
         if not np.all(np.isfinite(vertices)) or (normals is not None and not np.all(np.isfinite(normals))):
             self.fail(where, "to_world makes vertex positions or normals overflow (not finite)")
         # an emitting cube stays triangles: a mesh light (its faces are not one parallelogram light each)
@@ -1064,6 +1066,8 @@ class _Builder:
             uvs = 0.5 * (_RECT_VERTICES[:, :2] + 1.0)  # Mitsuba's: ((x + 1) / 2, (y + 1) / 2)
         elif t == "cube":
             uvs = np.tile([[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]], (6, 1))  # each face onto [0, 1]^2
+        elif t in ("obj", "ply", "serialized"):
+            uvs = file_uv
         mesh = TriangleMesh(vertices=vertices, faces=faces.astype(np.int64), normals=normals,
                             material=mat_index, name=name, shape=kind, uvs=uvs)
         if radiance is not None and t != "rectangle":
@@ -1138,13 +1142,15 @@ class _Builder:
             self.fail(w("filename"), f'envmap "{filename}" has negative, NaN or infinite pixels')
         return EnvMap(image=img, to_world=lin.copy(), scale=scale, filename=str(file))
 
-    def mesh_file(self, node: Mapping, path: str, props: dict, m: np.ndarray, flip: bool):
+    def mesh_file(self, node: Mapping, path: str, props: dict, m: np.ndarray, flip: bool, need_uv: bool):
         where = _where(node, path)
         filename = self.value(node, path, props, "filename", STRING)
         if filename is None:
             self.fail(where, f'{node["type"]} needs "filename"')
         face_normals = self.value(node, path, props, "face_normals", BOOL, False)
-        self.value(node, path, props, "flip_tex_coords", BOOL, True)  # checked; no textures, so no effect
+        # Mitsuba 3.9: OBJ texture coordinates are flipped (v -> 1 - v) by default, PLY ones not, serialized never
+        flip_uv = node["type"] != "serialized" and self.value(node, path, props, "flip_tex_coords", BOOL,
+                                                               node["type"] == "obj")
         file = resolve_file(filename, self.search_paths)
         try:
             if node["type"] == "serialized":
@@ -1155,21 +1161,38 @@ class _Builder:
                 parts = meshio.read_mesh(file, node["type"])
         except meshio.MeshFileError as e:
             self.fail(where, f'mesh file "{filename}" {e}')
-        vs, fs, ns, offset = [], [], [], 0
+        # Mitsuba keeps the file as one mesh: where some vertices have texture coordinates, the others get 0;
+        # where none has any, uv is the barycentric (b1, b2) of each face (a uv per corner: see below)
+        any_uv = any(p.uv is not None for p in parts)
+        vs, fs, ns, uvs, offset = [], [], [], [], 0
         for p in parts:
             v = tf.transform_points(m, p.vertices)
             f = p.faces
+            order = [0, 1, 2]  # our corners' places in the file's faces
             if face_normals:
                 n = None
             elif p.normals is not None:
                 n = tf.transform_normals(m, p.normals)
                 if flip:  # keep the file's winding relative to its normals (Mitsuba shades by the normals)
-                    f = f[:, [0, 2, 1]]
+                    order = [0, 2, 1]
+                    f = f[:, order]
             else:
                 n = meshio.vertex_normals(v, f)
+            uv = None
+            if p.uv is not None:
+                uv = np.column_stack([p.uv[:, 0], 1.0 - p.uv[:, 1]]) if flip_uv else p.uv
+            elif any_uv:
+                uv = np.zeros((len(v), 2))
+            elif need_uv:  # each face gets its own three vertices (same positions and normals, so same surface)
+                flat = f.reshape(-1)
+                v, n = v[flat], (None if n is None else n[flat])
+                f = np.arange(len(flat), dtype=np.int64).reshape(-1, 3)
+                uv = np.tile(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])[order], (len(p.faces), 1))
             vs.append(v)
             fs.append(f + offset)
             ns.append(n)
+            uvs.append(uv)
             offset += len(v)
         normals = None if face_normals else np.concatenate(ns)
-        return np.concatenate(vs), np.concatenate(fs), normals
+        uv = np.concatenate(uvs) if uvs[0] is not None else None
+        return np.concatenate(vs), np.concatenate(fs), normals, uv

@@ -26,6 +26,7 @@ class MeshPart:
     vertices: np.ndarray  # (N, 3) float64
     faces: np.ndarray  # (M, 3) int64
     normals: np.ndarray | None  # (N, 3) float64 as stored in the file (not normalized), or None
+    uv: np.ndarray | None = None  # (N, 2) float64 texture coordinates as stored in the file (not flipped), or None
 
 
 def _one_line(e: BaseException) -> str:
@@ -51,7 +52,12 @@ def _parts_from_kwargs(kwargs_list) -> list[MeshPart]:
             normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
             if normals.shape != vertices.shape:
                 normals = None
-        parts.append(MeshPart(vertices, faces, normals))
+        uv = getattr(kw.get("visual"), "uv", None)  # trimesh splits OBJ vertices by (v, vt, vn), as Mitsuba
+        if uv is not None:
+            uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+            if len(uv) != len(vertices):
+                uv = None
+        parts.append(MeshPart(vertices, faces, normals, uv))
     return parts
 
 
@@ -104,8 +110,7 @@ def read_serialized(path: Path, shape_index: int = 0) -> MeshPart:
 
         vertices = take(3 * nv, real).reshape(-1, 3).astype(np.float64)
         normals = take(3 * nv, real).reshape(-1, 3).astype(np.float64) if flags & SERIALIZED_FLAGS["normals"] else None
-        if flags & SERIALIZED_FLAGS["texcoords"]:
-            take(2 * nv, real)
+        uv = take(2 * nv, real).reshape(-1, 2).astype(np.float64) if flags & SERIALIZED_FLAGS["texcoords"] else None
         if flags & SERIALIZED_FLAGS["colors"]:
             take(3 * nv, real)
         faces = take(3 * nf, np.uint32).reshape(-1, 3).astype(np.int64)
@@ -113,7 +118,7 @@ def read_serialized(path: Path, shape_index: int = 0) -> MeshPart:
         raise
     except (struct.error, zlib.error, ValueError) as e:
         raise MeshFileError(f"is a truncated or corrupt serialized file ({_one_line(e)})") from None
-    part = MeshPart(vertices=vertices, faces=faces, normals=normals)
+    part = MeshPart(vertices=vertices, faces=faces, normals=normals, uv=uv)
     _check_parts([part])
     return part
 
@@ -130,6 +135,8 @@ def _check_parts(parts: list[MeshPart]) -> None:
             lengths = np.linalg.norm(p.normals, axis=1)
             if not np.all(np.isfinite(lengths)) or np.any(lengths == 0):
                 raise MeshFileError("has a vertex normal that is zero, NaN or infinite")
+        if p.uv is not None and not np.all(np.isfinite(p.uv)):
+            raise MeshFileError("has a texture coordinate that is NaN or infinite")
 
 
 def read_mesh(path: Path, kind: str) -> list[MeshPart]:

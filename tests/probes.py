@@ -392,14 +392,18 @@ def probe_fresnel(cos_i: wp.array(dtype=float), eta: float, ceta: wp.vec3, ck: w
 
 @wp.kernel(enable_backward=False)
 def probe_textures(scene: SceneData, quad: wp.array(dtype=wp.int32), sphere: wp.array(dtype=wp.int32),
-                   p: wp.array(dtype=wp.vec3), tex: wp.array(dtype=wp.int32), uv_in: wp.array(dtype=wp.vec2),
+                   p: wp.array(dtype=wp.vec3), face: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.vec2),
+                   tex: wp.array(dtype=wp.int32), uv_in: wp.array(dtype=wp.vec2),
                    uv_out: wp.array(dtype=wp.vec2), value: wp.array(dtype=wp.vec3)):
-    """surface_uv at point p[i] of quad[i] or sphere[i]; texture tex[i] at uv_in[i]."""
+    """surface_uv at point p[i] of quad[i] or sphere[i] (else at barycentrics bary[i] of triangle face[i]);
+    texture tex[i] at uv_in[i]."""
     i = wp.tid()
     hit = Hit()
     hit.p = p[i]
     hit.quad = quad[i]
     hit.sphere = sphere[i]
+    hit.face = face[i]
+    hit.bary = bary[i]
     uv_out[i] = surface_uv(scene, hit)
     value[i] = texture_eval(scene, tex[i], uv_in[i])
 

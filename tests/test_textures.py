@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from PIL import Image
@@ -25,16 +27,19 @@ def scene_with(tmp_path, textures: dict, shapes: dict):
     return load_dict(d, source=str(tmp_path / "probe"))
 
 
-def probe(scene, quad=(), sphere=(), p=(), tex=(), uv=()):
-    n = max(len(quad), len(tex))
+def probe(scene, quad=(), sphere=(), p=(), tex=(), uv=(), face=(), bary=()):
+    n = max(len(quad), len(tex), len(face))
     quad = list(quad) + [-1] * (n - len(quad))
     sphere = list(sphere) + [-1] * (n - len(sphere))
     p = list(p) + [(0.0, 0.0, 0.0)] * (n - len(p))
+    face = list(face) + [0] * (n - len(face))
+    bary = list(bary) + [(0.0, 0.0)] * (n - len(bary))
     tex = list(tex) + [0] * (n - len(tex))
     uv = list(uv) + [(0.0, 0.0)] * (n - len(uv))
     ds = DeviceScene(scene, "cpu")
     return launch(probe_textures, n, "cpu", [ds.data, arr(quad, wp.int32, "cpu"), arr(sphere, wp.int32, "cpu"),
-                                              arr(p, wp.vec3, "cpu"), arr(tex, wp.int32, "cpu"),
+                                              arr(p, wp.vec3, "cpu"), arr(face, wp.int32, "cpu"),
+                                              arr(bary, wp.vec2, "cpu"), arr(tex, wp.int32, "cpu"),
                                               arr(uv, wp.vec2, "cpu")], [wp.vec2, wp.vec3])
 
 
@@ -92,10 +97,79 @@ def test_texture_errors_are_one_line(tmp_path):
         with pytest.raises(SceneError) as e:
             load_dict(d)
         assert problem in str(e.value) and "\n" not in str(e.value), str(e.value)
-    d = dict(base, s={"type": "obj", "filename": "x.obj",
-                      "bsdf": {"type": "diffuse", "reflectance": {"type": "checkerboard"}}})
-    with pytest.raises(SceneError, match="textured bsdf on a obj is not supported yet"):
+    d = dict(base, s={"type": "disk", "bsdf": {"type": "diffuse", "reflectance": {"type": "checkerboard"}}})
+    with pytest.raises(SceneError, match="textured bsdf on a disk is not supported yet"):
         load_dict(d)
+
+
+TRI_OBJ = """v 0 0 0
+v 1 0 0
+v 0 1 0
+v 1 1 0
+vn 0 0 1
+vt 0.1 0.2
+vt 0.9 0.3
+vt 0.2 0.8
+vt 0.7 0.7
+f 1/1/1 2/2/1 3/3/1
+f 2/4/1 4/2/1 3/3/1
+"""
+
+
+def mesh_probe(tmp_path, shape: dict, faces, barys):
+    """surface_uv on the mesh of ``shape`` (the scene's only triangle mesh: its faces come first)."""
+    s = scene_with(tmp_path, {}, {"m": dict(shape, bsdf={"type": "diffuse", "reflectance": {"type": "checkerboard"}})})
+    uv, _ = probe(s, face=faces, bary=barys)
+    return s, uv
+
+
+def test_mesh_uv_interpolates_the_files_coordinates_as_mitsuba(tmp_path):
+    (tmp_path / "t.obj").write_text(TRI_OBJ)
+    # OBJ: v flipped by default (flip_tex_coords true); corner weights (b0, b1) on the file's corners 0 and 1
+    _, uv = mesh_probe(tmp_path, {"type": "obj", "filename": str(tmp_path / "t.obj")}, [0, 0, 0, 1],
+                       [(1, 0), (0, 1), (0.2, 0.3), (1, 0)])
+    vt = np.array([[0.1, 0.8], [0.9, 0.7], [0.2, 0.2], [0.7, 0.3]])  # 1 - v
+    assert np.allclose(uv, [vt[0], vt[1], 0.2 * vt[0] + 0.3 * vt[1] + 0.5 * vt[2], vt[3]], atol=1e-6)
+    _, uv = mesh_probe(tmp_path, {"type": "obj", "filename": str(tmp_path / "t.obj"), "flip_tex_coords": False},
+                       [0], [(1, 0)])
+    assert np.allclose(uv[0], (0.1, 0.2), atol=1e-6)
+    # PLY: not flipped by default (Mitsuba 3.9), whichever of Mitsuba's three property names the file uses
+    for names in (("u", "v"), ("s", "t"), ("texture_u", "texture_v")):
+        (tmp_path / "t.ply").write_text(
+            "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+            f"property float {names[0]}\nproperty float {names[1]}\nelement face 1\n"
+            "property list uchar int vertex_indices\nend_header\n0 0 0 0.1 0.2\n1 0 0 0.3 0.4\n0 1 0 0.5 0.6\n"
+            "3 0 1 2\n")
+        _, uv = mesh_probe(tmp_path, {"type": "ply", "filename": str(tmp_path / "t.ply")}, [0, 0], [(0, 1), (0, 0)])
+        assert np.allclose(uv, [(0.3, 0.4), (0.5, 0.6)], atol=1e-6), names
+
+
+def test_serialized_texture_coordinates_are_read_unflipped(tmp_path):
+    # the feature scene's grid, written by examples/make_feature_maps.py both ways: uv ((x + 1) / 2, (z + 1) / 2)
+    maps = Path(__file__).resolve().parents[1] / "scenes" / "features" / "maps"
+    probes = dict(faces=[0, 0, 0, 150], barys=[(1, 0), (0, 1), (0, 0), (0.25, 0.25)])
+    _, uv_s = mesh_probe(tmp_path, {"type": "serialized", "filename": str(maps / "uv_grid.serialized")}, **probes)
+    _, uv_p = mesh_probe(tmp_path, {"type": "ply", "filename": str(maps / "uv_grid.ply")}, **probes)
+    assert np.allclose(uv_s[:3], [(0, 0), (1 / 12, 1 / 12), (1 / 12, 0)], atol=1e-6)
+    assert np.allclose(uv_s, uv_p, atol=2e-6)
+
+
+def test_mesh_without_texture_coordinates_gets_mitsubas_barycentric_uv(tmp_path):
+    # uv = (b1, b2) on the file's corners, also where a mirroring to_world reverses our winding (the file has
+    # normals, so we keep it facing them) and the corners 1 and 2 trade places
+    (tmp_path / "n.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvn 0 0 1\nf 1//1 2//1 3//1\n"
+                                    "f 2//1 4//1 3//1\n")
+    for mirror in (False, True):
+        to_world = tf.scale([-1, 1, 1]) if mirror else np.eye(4)
+        s, uv = mesh_probe(tmp_path, {"type": "obj", "filename": str(tmp_path / "n.obj"), "to_world": to_world},
+                           [0, 0, 0, 1], [(1, 0), (0, 1), (0.2, 0.3), (0, 0)])
+        file_corner = [(0, 0), (1, 0), (0, 1)]
+        ours = [file_corner[k] for k in ([0, 2, 1] if mirror else [0, 1, 2])]
+        b = np.array([[1, 0, 0], [0, 1, 0], [0.2, 0.3, 0.5], [0, 0, 1]])
+        assert np.allclose(uv, b @ np.array(ours), atol=1e-6), mirror
+        mesh = s.meshes[-1]
+        assert len(mesh.vertices) == 6 and len(mesh.faces) == 2  # one vertex per corner: uv per corner
+        assert np.allclose(mesh.normals, [0, 0, 1])
 
 
 def test_jpeg_bitmaps_read_as_srgb_like_png(tmp_path):
