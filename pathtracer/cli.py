@@ -2,8 +2,10 @@
 
 Every option is checked before the scene is loaded or anything compiled. User errors (bad options,
 scene errors, render errors, unwritable output) print ONE line ``pathtracer: error: <what>`` on
-stderr and exit with status 2; Ctrl-C prints ``pathtracer: interrupted`` and exits with 130. No
-partial output file is ever left behind.
+stderr and exit with status 2. SIGINT (Ctrl-C) and SIGTERM during rendering stop it after the current unit of
+passes, write the image so far (and the checkpoint, with --checkpoint) and exit with 130 and 143; before rendering
+starts they exit at once with nothing written. No partial output file is ever left behind: every file is written
+to a temporary name and renamed.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import time
 import warnings
 
 PROG = "pathtracer"
-EXIT_OK, EXIT_USAGE, EXIT_INTERRUPTED = 0, 2, 130
+EXIT_OK, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 2, 130, 143
 OUTPUT_EXTENSIONS = (".exr", ".png")
 _DEVICE_RE = re.compile(r"^(cpu|cuda(:\d+)?)$")
 _PARAM_NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -75,7 +77,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog=PROG,
         description="Render a Mitsuba-style XML scene with a Monte Carlo path tracer (NVIDIA Warp).",
         epilog="Options left out take the scene file's value (or the renderer's default). "
-        "Exit status: 0 success, 2 bad usage or scene/render/output error, 130 interrupted.",
+        "Exit status: 0 success, 2 bad usage or scene/render/output error, 130 interrupted (SIGINT), 143 "
+        "terminated (SIGTERM).",
     )
     p.add_argument("scene", metavar="SCENE", help="scene file (.xml)")
     p.add_argument("-o", "--output", metavar="OUT", required=True, help="output image: .exr (linear float32) or .png (8-bit sRGB)")
@@ -100,6 +103,19 @@ def build_parser() -> argparse.ArgumentParser:
                    help="triangle backend: wide (default: our watertight 4-wide box tree) or warp (Warp's wp.Mesh "
                    "and mesh_query_ray)")
     p.add_argument("--threads", type=int, metavar="N", help="CPU threads (> 0)")
+    p.add_argument("--time", type=float, metavar="SECONDS", dest="time_limit",
+                   help="render for at most this long (stops when the next pass would overrun; without --spp, "
+                   "spp is then unbounded)")
+    p.add_argument("--target-error", type=float, metavar="REL",
+                   help="stop once the image's estimated relMSE is at or below REL (after a minimum of passes)")
+    p.add_argument("--checkpoint", metavar="PATH", help="save the render's sums here as it goes (atomically), to "
+                   "--resume from after an interruption")
+    p.add_argument("--checkpoint-every", type=float, metavar="SECONDS", default=30.0,
+                   help="seconds between checkpoints (default 30)")
+    p.add_argument("--resume", action="store_true", help="continue from --checkpoint (the image is bit-identical "
+                   "to an uninterrupted render)")
+    p.add_argument("--preview-every", type=float, metavar="SECONDS",
+                   help="write the image so far to the output file this often")
     p.add_argument("--view", choices=("radiance", "direction", "normal"), default="radiance", help="what to render (default: radiance)")
     p.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE", help="set scene parameter $NAME (repeatable)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -121,6 +137,18 @@ def validate(args: argparse.Namespace) -> dict[str, str]:
         raise UsageError(f"--seed must be in [0, 2**32), got {args.seed}")
     if args.device is not None and not _DEVICE_RE.match(args.device):
         raise UsageError(f"unknown device {args.device!r}; expected cpu, cuda or cuda:N")
+    for name, value in (("--time", args.time_limit), ("--target-error", args.target_error),
+                        ("--checkpoint-every", args.checkpoint_every), ("--preview-every", args.preview_every)):
+        if value is not None and not value > 0:  # (also NaN)
+            raise UsageError(f"{name} must be > 0, got {value}")
+    if args.resume and args.checkpoint is None:
+        raise UsageError("--resume needs --checkpoint PATH")
+    if args.checkpoint is not None:
+        ck_dir = os.path.dirname(os.path.abspath(args.checkpoint))
+        if os.path.isdir(args.checkpoint) or not os.path.isdir(ck_dir) or not os.access(ck_dir, os.W_OK | os.X_OK):
+            raise UsageError(f"{args.checkpoint}: cannot write a checkpoint there")
+        if args.resume and not os.path.isfile(args.checkpoint):
+            raise UsageError(f"{args.checkpoint}: no checkpoint to resume from (no such file)")
     if args.stats is not None:
         stats_dir = os.path.dirname(os.path.abspath(args.stats))
         if os.path.isdir(args.stats) or not os.path.isdir(stats_dir) or not os.access(stats_dir, os.W_OK | os.X_OK):
@@ -167,11 +195,25 @@ def _render_kwargs(args: argparse.Namespace) -> dict:
         "light_tracing": {None: None, "auto": "auto", "on": True, "off": False}[args.light_tracing],
         "triangles": args.triangles,
         "threads": args.threads,
+        "time_limit": args.time_limit,
+        "target_error": args.target_error,
+        "checkpoint": args.checkpoint,
     }
     kwargs = {k: v for k, v in given.items() if v is not None}
     kwargs["view"] = args.view
     kwargs["progress"] = not args.no_progress
+    if args.checkpoint is not None:
+        kwargs["checkpoint_every"] = args.checkpoint_every
+        kwargs["resume"] = args.resume
+    if args.preview_every is not None:
+        kwargs["preview"] = args.output
+        kwargs["preview_every"] = args.preview_every
     return kwargs
+
+
+def _job(args: argparse.Namespace) -> bool:
+    """Is this a render job (a budget other than spp, or a checkpoint)? Its EXR then gets error and count layers."""
+    return args.time_limit is not None or args.target_error is not None or args.checkpoint is not None
 
 
 def _accepts(func, name: str) -> bool:
@@ -223,11 +265,19 @@ def write_stats(path: str, stats: dict) -> None:
 
 
 def run(args: argparse.Namespace, t_start: float | None = None) -> int:
+    from pathtracer import jobs
+
+    params = validate(args)
+    stop = jobs.StopFlag()
+    with jobs.handle_signals(stop):  # from here SIGINT and SIGTERM stop a render after its unit, image saved
+        return _run(args, params, stop, t_start)
+
+
+def _run(args: argparse.Namespace, params: dict, stop, t_start: float | None) -> int:
     import pathtracer
     from pathtracer.errors import PathtracerError
     from pathtracer.imageio import write_image
 
-    params = validate(args)
     try:
         scene = pathtracer.load_file(args.scene, **params)
         kwargs = _render_kwargs(args)
@@ -236,14 +286,28 @@ def run(args: argparse.Namespace, t_start: float | None = None) -> int:
             stats = {}
             kwargs["stats"] = stats
         layers: dict = {}
-        if getattr(getattr(scene, "integrator", None), "layer_names", ()) and _accepts(pathtracer.render, "layers"):
+        if (getattr(getattr(scene, "integrator", None), "layer_names", ()) or _job(args)) \
+                and _accepts(pathtracer.render, "layers"):
             kwargs["layers"] = layers
+        if _accepts(pathtracer.render, "stop"):
+            kwargs["stop"] = stop
         t0 = time.perf_counter()
         with warnings.catch_warnings():
             if stats is not None:  # reported in the summary line instead
                 warnings.filterwarnings("ignore", message=r".*non-finite samples", category=RuntimeWarning)
             image = pathtracer.render(scene, **kwargs)
         elapsed = time.perf_counter() - t0
+        interrupted = (stats or {}).get("stop_reason") == "interrupted"
+        if interrupted and not (stats or {}).get("spp"):
+            return _interrupted(stop, None, args)
+        if _job(args) and stats and "stderr" in layers:
+            import numpy as np
+
+            h, w = image.shape[:2]
+            layers["spp"] = np.full((h, w), float(stats["spp"]), dtype=np.float32)  # samples per pixel
+        if not str(args.output).lower().endswith(".exr") and _job(args):
+            layers.pop("stderr", None)
+            layers.pop("spp", None)
         if layers and not str(args.output).lower().endswith(".exr"):
             print(f"{PROG}: note: the {', '.join(layers)} layers of the moment integrator go to .exr files only; "
                   f"{args.output} holds the image", file=sys.stderr, flush=True)
@@ -273,8 +337,28 @@ def run(args: argparse.Namespace, t_start: float | None = None) -> int:
     samples = int(stats["samples"]) if "samples" in stats else w * h * (spp or 0)
     discarded = int(stats.get("discarded", 0))
     summary = _summary(args.output, image, spp, stats.get("device"), seconds, compile_seconds, samples, discarded)
+    reason = stats.get("stop_reason")
+    if reason in ("time", "target_error"):
+        summary += f" (stopped by {'--time' if reason == 'time' else '--target-error'}, estimated relMSE " \
+                   f"{stats.get('relmse_estimate', float('nan')):.3g})"
     print(summary, flush=True)
+    if reason == "interrupted":
+        return _interrupted(stop, spp, args)
     return EXIT_OK
+
+
+def _interrupted(stop, passes, args) -> int:
+    """The message and exit status of a render stopped by SIGINT (130) or SIGTERM (143)."""
+    import signal
+
+    saved = []
+    if passes:
+        saved.append(f"the image so far ({passes} spp) in {args.output}")
+    if passes and args.checkpoint:
+        saved.append(f"the checkpoint in {args.checkpoint} (--resume continues)")
+    what = "terminated" if stop.signum == signal.SIGTERM else "interrupted"
+    print(f"{PROG}: {what}" + (f"; saved {' and '.join(saved)}" if saved else ""), file=sys.stderr, flush=True)
+    return EXIT_TERMINATED if stop.signum == signal.SIGTERM else EXIT_INTERRUPTED
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -288,9 +372,12 @@ def main(argv: list[str] | None = None) -> int:
         return run(args, t_start)
     except UsageError as e:
         return _error(str(e))
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted", file=sys.stderr, flush=True)
-        return EXIT_INTERRUPTED
+    except KeyboardInterrupt as e:  # before rendering began (pathtracer.jobs.Interrupted), or outside a job
+        import signal
+
+        terminated = getattr(e, "signum", None) == signal.SIGTERM
+        print(f"{PROG}: {'terminated' if terminated else 'interrupted'}", file=sys.stderr, flush=True)
+        return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

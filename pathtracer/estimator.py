@@ -109,13 +109,29 @@ def predicted_path_error(traced_sums: PassSum, magnitude: float) -> float:
     return float(np.mean(pt_only.variance_of_mean * n / denom) + np.mean(caustic * magnitude / denom))
 
 
-def render_auto(path: Renderer, traced: Renderer, seed: int, spp: int, progress: bool = False) -> Combined:
-    """Pilot both renderers (``path``: light tracing off, ``traced``: on), then finish with the better one."""
+@dataclass
+class Pilot:
+    """The pilot's outcome: which candidate won, the films of both (the winner's continues), the figures."""
+
+    use_light_tracing: bool
+    films: dict  # "path", "light_tracing" -> Film with the pilot's passes
+    seeds: dict  # the same keys -> the seed of that candidate's passes
+    passes: int  # per candidate
+    config: dict
+
+    @property
+    def winner(self) -> str:
+        return "light_tracing" if self.use_light_tracing else "path"
+
+
+def run_pilot(path: Renderer, traced: Renderer, seed: int, spp: int, progress=False) -> Pilot:
+    """Render the pilot passes with both renderers (``path``: light tracing off, ``traced``: on) and decide."""
     p = pilot_passes(spp, path.replicates)
     seed_b = pilot_seed(seed)
-    a = path.render_passes(seed=seed, first_pass=0, count=p, progress=progress)
-    b = traced.render_passes(seed=seed_b, first_pass=0, count=p, progress=progress)
-    pilot_seconds = (a.seconds, b.seconds)
+    fa, fb = path.new_film(), traced.new_film()
+    path.render_into(fa, seed, 0, p, progress)
+    traced.render_into(fb, seed_b, 0, p, progress)
+    a, b = fa.sums(), fb.sums()
     # relMSE x cost per pass of each candidate: path tracing's measured or, where the pilot cannot have seen its
     # rare caustic samples, predicted from the light tracer's view of them (whichever is larger)
     predicted = predicted_path_error(b, caustic_magnitude(path.scene))
@@ -123,12 +139,6 @@ def render_auto(path: Renderer, traced: Renderer, seed: int, spp: int, progress:
     cost = {"path": max(measured, predicted),
             "light_tracing": b.relmse_estimate * p * LIGHT_TRACING_COST}
     use_lt = cost["light_tracing"] < cost["path"]
-    rest = spp - p  # the winner renders all spp passes (a power of two stays one, for Sobol')
-    if use_lt:
-        b = b + traced.render_passes(seed=seed_b, first_pass=p, count=rest, progress=progress)
-    else:
-        a = a + path.render_passes(seed=seed, first_pass=p, count=rest, progress=progress)
-    parts = [a, b]
     # the loser's pilot is not averaged in: it lost because its error is larger, and its own estimate of that error
     # is least reliable exactly then (light tracing's rare huge samples on the open sky): weighted by it, the image
     # came out 16% noisier there than path tracing alone
@@ -137,6 +147,19 @@ def render_auto(path: Renderer, traced: Renderer, seed: int, spp: int, progress:
         "passes_each": p, "light_tracing_cost_ratio": LIGHT_TRACING_COST,
         "relmse_x_cost_per_pass": {k: float(v) for k, v in cost.items()},
         "path_measured": float(measured), "path_predicted": predicted,
-        "pilot_seconds": {"path": pilot_seconds[0], "light_tracing": pilot_seconds[1]},
+        "pilot_seconds": {"path": a.seconds, "light_tracing": b.seconds},
         "weights": {"path": weights[0], "light_tracing": weights[1]}}}
-    return Combined(parts, weights, config)
+    return Pilot(use_lt, {"path": fa, "light_tracing": fb}, {"path": seed, "light_tracing": seed_b}, p, config)
+
+
+def render_auto(path: Renderer, traced: Renderer, seed: int, spp: int, progress: bool = False) -> Combined:
+    """Pilot both renderers (``path``: light tracing off, ``traced``: on), then finish with the better one: it
+    continues its own film (its pilot passes first), up to spp passes."""
+    pilot = run_pilot(path, traced, seed, spp, progress)
+    renderer = traced if pilot.use_light_tracing else path
+    film = pilot.films[pilot.winner]
+    loser = pilot.films["path" if pilot.use_light_tracing else "light_tracing"]
+    renderer.render_into(film, pilot.seeds[pilot.winner], pilot.passes, spp - pilot.passes, progress)
+    parts = {pilot.winner: film.sums(), "path" if pilot.use_light_tracing else "light_tracing": loser.sums()}
+    w = pilot.config["pilot"]["weights"]
+    return Combined([parts["path"], parts["light_tracing"]], [w["path"], w["light_tracing"]], pilot.config)

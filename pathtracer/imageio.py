@@ -18,6 +18,7 @@ from pathtracer.errors import ImageIOError
 SUPPORTED_EXTENSIONS = (".exr", ".png")  # what we write
 READ_EXTENSIONS = SUPPORTED_EXTENSIONS + (".jpg", ".jpeg")  # what we read (JPEG textures, decoded as PNG is)
 LAYER_CHANNELS = "XYZ"
+RGB_LAYERS = ("stderr",)  # layers of RGB values (channels <name>.R, .G, .B); the others are XYZ, as Mitsuba's
 
 
 def _extension(path: str | os.PathLike, allowed: tuple = SUPPORTED_EXTENSIONS) -> str:
@@ -75,7 +76,10 @@ def _write_exr(path: str, image: np.ndarray, layers: Mapping[str, np.ndarray] | 
     # One "RGB" entry of shape (H, W, 3) is stored as the three standard channels R, G, B.
     channels = {"RGB": image}
     for name, layer in (layers or {}).items():  # Mitsuba's layout: channels <layer>.X, <layer>.Y, <layer>.Z
-        for c, axis in zip(LAYER_CHANNELS, range(3)):
+        if layer.ndim == 2:  # one value per pixel: a channel of its own
+            channels[name] = np.ascontiguousarray(layer)
+            continue
+        for c, axis in zip("RGB" if name in RGB_LAYERS else LAYER_CHANNELS, range(3)):
             channels[f"{name}.{c}"] = np.ascontiguousarray(layer[..., axis])
     with OpenEXR.File(header, channels) as f:
         f.write(path)
@@ -95,7 +99,8 @@ def write_image(path: str | os.PathLike, image: np.ndarray, *, display: bool = F
     """Write an (H, W, 3) linear image: ``.exr`` as float32 RGB, ``.png`` as 8-bit sRGB.
 
     ``layers`` (EXR only): more (H, W, 3) float32 images, stored as channels ``<name>.X``, ``.Y``, ``.Z`` beside
-    R, G, B (as Mitsuba writes its moment integrator's layers); ``read_layers`` reads them back.
+    R, G, B (as Mitsuba writes its moment integrator's layers; ``<name>.R``, ``.G``, ``.B`` for the RGB_LAYERS), or
+    (H, W) ones, stored as one channel ``<name>``; ``read_layers`` reads them back.
 
     ``display=True`` says the values are already display colours (the debug views' 0.5 v + 0.5, as the seed
     shows them): a PNG then stores them without the sRGB curve. EXR always stores the values as given.
@@ -114,7 +119,7 @@ def write_image(path: str | os.PathLike, image: np.ndarray, *, display: bool = F
             raise ImageIOError(f"{path}: cannot write: image layers ({', '.join(layers)}) need an .exr file")
         layers = {k: np.asarray(v, dtype=np.float32) for k, v in layers.items()}
         for k, v in layers.items():
-            if v.shape != image.shape:
+            if v.shape != image.shape and v.shape != image.shape[:2]:
                 raise ImageIOError(f"{path}: cannot write: layer {k!r} has shape {v.shape}, the image {image.shape}")
     if display and ext == ".png":
         image = srgb_to_linear(np.clip(image, 0.0, 1.0))  # the PNG encoder's sRGB curve then gives them back
@@ -160,7 +165,8 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
 
 
 def read_layers(path: str | os.PathLike) -> dict[str, np.ndarray]:
-    """The extra layers of an EXR file (channels ``<name>.X``, ``.Y``, ``.Z``), float32 (H, W, 3) by name."""
+    """The extra layers of an EXR file by name: channels ``<name>.X``, ``.Y``, ``.Z`` (or ``.R``, ``.G``, ``.B``)
+    as float32 (H, W, 3), single channels other than R, G, B, A, Y as (H, W)."""
     import OpenEXR
 
     path = os.fspath(path)
@@ -169,9 +175,15 @@ def read_layers(path: str | os.PathLike) -> dict[str, np.ndarray]:
             channels = {name: np.array(ch.pixels) for name, ch in f.channels().items()}
     except Exception as e:
         raise ImageIOError(f"{path}: cannot read: {_reason(e)}") from None
-    names = sorted({k.rsplit(".", 1)[0] for k in channels if "." in k})
-    return {n: np.stack([channels[f"{n}.{c}"].astype(np.float32) for c in LAYER_CHANNELS], axis=-1)
-            for n in names if all(f"{n}.{c}" in channels for c in LAYER_CHANNELS)}
+    out = {}
+    for n in sorted({k.rsplit(".", 1)[0] for k in channels if "." in k}):
+        for letters in (LAYER_CHANNELS, "RGB"):
+            if all(f"{n}.{c}" in channels for c in letters):
+                out[n] = np.stack([channels[f"{n}.{c}"].astype(np.float32) for c in letters], axis=-1)
+    for k, v in channels.items():
+        if "." not in k and k not in ("R", "G", "B", "A", "Y"):
+            out[k] = v.astype(np.float32)
+    return out
 
 
 def _read_exr(path: str) -> np.ndarray:

@@ -28,6 +28,8 @@ from kernels.types import PassParams
 from pathtracer.device_scene import DeviceScene
 from pathtracer.diagnostics import roulette_variance_warning
 from pathtracer.errors import RenderError
+from pathtracer.film import SRGB_TO_XYZ, Film, PassSum, box3  # noqa: F401 (re-exported)
+from pathtracer.jobs import check_film_size
 from pathtracer.scene import Scene
 from pathtracer.warp_setup import init_warp
 
@@ -42,118 +44,6 @@ UINT32_LIMIT = 2**32
 TILES_PER_THREAD = 4  # row sets per CPU thread, taken on demand (load balancing)
 LAUNCH_SAMPLES = 1 << 15  # samples one launch aims at (~10-20 ms on a CPU core), by grouping passes
 MAX_PASSES_PER_LAUNCH = 16
-
-
-SRGB_TO_XYZ = np.array([[0.412453, 0.357580, 0.180423],  # Mitsuba's (kernels/film.py: srgb_to_xyz)
-                        [0.212671, 0.715160, 0.072169],
-                        [0.019334, 0.119193, 0.950227]])
-
-
-@dataclass
-class PassSum:
-    """Per-pixel sums over ``passes`` sample passes: mergeable by addition.
-
-    Pass p also goes to replicate p mod R (``rep_sum``): with the Sobol' sampler each replicate is an independent
-    scramble, so the spread of the replicate means is an unbiased estimate of the error of their average, while
-    the spread of the passes (``sum_sq``) is not (stratified passes are negatively correlated). ``estimator`` says
-    which one ``variance_of_mean`` uses: "passes" (independent sampling) or "replicates" (Sobol')."""
-
-    sum: np.ndarray  # (H, W, 3) float64, sum of samples
-    sum_sq: np.ndarray  # (H, W, 3) float64, sum of squared samples
-    passes: int
-    discarded: int = 0  # non-finite samples dropped (never reach the image)
-    seconds: float = 0.0  # time spent rendering (excluding compilation)
-    rays: int = 0  # rays traced, counted only by a Renderer made with count_rays=True
-    # the light tracer's share (caustics seen directly), per pass, when it runs: independent of the path tracer's
-    lt_sum: np.ndarray | None = None
-    lt_sum_sq: np.ndarray | None = None
-    rep_sum: np.ndarray | None = None  # (R, H, W, 3) float64: the path tracer's sum per replicate
-    rep_passes: np.ndarray | None = None  # (R,) int: passes per replicate
-    estimator: str = "passes"
-    m2_sum: np.ndarray | None = None  # (H, W, 3) float64: sum of squared per-sample XYZ (moment integrator only)
-
-    def __add__(self, other: "PassSum") -> "PassSum":
-        def add(a, b):
-            return b if a is None else a if b is None else a + b
-
-        if self.estimator != other.estimator:
-            raise ValueError(f"cannot merge sums of different samplers ({self.estimator} and {other.estimator})")
-        if self.rep_sum is not None and other.rep_sum is not None and len(self.rep_sum) != len(other.rep_sum):
-            raise ValueError(f"cannot merge sums of {len(self.rep_sum)} and {len(other.rep_sum)} replicates")
-        return PassSum(self.sum + other.sum, self.sum_sq + other.sum_sq, self.passes + other.passes,
-                       self.discarded + other.discarded, self.seconds + other.seconds, self.rays + other.rays,
-                       add(self.lt_sum, other.lt_sum), add(self.lt_sum_sq, other.lt_sum_sq),
-                       add(self.rep_sum, other.rep_sum), add(self.rep_passes, other.rep_passes), self.estimator,
-                       add(self.m2_sum, other.m2_sum))
-
-    @property
-    def mean(self) -> np.ndarray:
-        """Linear radiance, float32 (H, W, 3)."""
-        total = self.sum if self.lt_sum is None else self.sum + self.lt_sum
-        return (total / max(self.passes, 1)).astype(np.float32)
-
-    def layers(self, names: tuple[str, ...]) -> dict[str, np.ndarray]:
-        """Mitsuba's moment layers, float32 (H, W, 3) each: ``names[0]`` the mean XYZ of the samples, ``names[1]``
-        the mean of their squares (``Integrator.layer_names``); empty when none were summed."""
-        if self.m2_sum is None or not names:
-            return {}
-        n = max(self.passes, 1)
-        xyz = (self.sum / n) @ SRGB_TO_XYZ.T
-        return {names[0]: xyz.astype(np.float32), names[1]: (self.m2_sum / n).astype(np.float32)}
-
-    @staticmethod
-    def _var_of_mean(total: np.ndarray, total_sq: np.ndarray, n: int) -> np.ndarray:
-        m = total / n
-        return np.maximum(total_sq / n - m * m, 0.0) * n / (n - 1) / n
-
-    def _replicate_var_of_mean(self) -> np.ndarray:
-        """sum_r n_r (m_r - m)^2 / (R' - 1) / N over the R' non-empty replicates: the spread of the replicate
-        means, each weighted by its pass count (exactly the variance of the mean of R equal replicates)."""
-        n = np.asarray(self.rep_passes, dtype=np.float64)
-        used = n > 0
-        if used.sum() < 2:
-            return np.full_like(self.sum, np.inf)
-        reps = self.rep_sum[used]
-        n = n[used]
-        m = self.sum / self.passes
-        dev = reps / n[:, None, None, None] - m
-        return np.einsum("r,rhwc->hwc", n, dev * dev) / (len(n) - 1) / self.passes
-
-    @property
-    def variance_of_mean(self) -> np.ndarray:
-        """Per-pixel, per-channel estimate of the variance of ``mean``: from the spread of the passes (independent
-        sampling) or of the replicates (Sobol')."""
-        n = self.passes
-        if n < 2:
-            return np.full_like(self.sum, np.inf)
-        if self.estimator == "replicates":
-            var = self._replicate_var_of_mean()
-        else:
-            var = self._var_of_mean(self.sum, self.sum_sq, n)
-        if self.lt_sum is not None:  # the two estimators use independent random numbers: variances add
-            var = var + self._var_of_mean(self.lt_sum, self.lt_sum_sq, n)
-        return var
-
-    @property
-    def relmse_estimate(self) -> float:
-        """The image's estimated relMSE against the true image R, mean((mean - R)^2 / (R^2 + 0.01)): the mean over
-        pixels and channels of Var[mean] / (R'^2 + 0.01), R' the mean image box-filtered over 3x3 pixels.
-
-        Why not mean^2 in the denominator: a pixel's rare huge sample (a caustic that a diffuse bounce happened to
-        find) then inflates its own denominator and hides the very error it causes; on the mirror scenes that
-        under-estimated the relMSE 2-5x at 64 spp. The filter dilutes a one-pixel spike nine-fold and leaves
-        smooth regions as they are (measured estimate / true relMSE over 5 seeds: 0.75-0.96 at 64 spp,
-        0.89-1.01 at 256 spp on the four seed scenes; the median or trimmed mean of the replicates instead
-        over-estimated the teapot's 1.4-2x, where much of a pixel's value comes from rare paths)."""
-        var = self.variance_of_mean
-        return float(np.mean(var / (box3(self.mean.astype(np.float64)) ** 2 + 0.01)))
-
-
-def box3(img: np.ndarray) -> np.ndarray:
-    """(H, W, C) image averaged over each pixel's 3x3 neighbourhood (edges repeated)."""
-    h, w = img.shape[:2]
-    p = np.pad(img, ((1, 1), (1, 1), (0, 0)), mode="edge")
-    return sum(p[dy:dy + h, dx:dx + w] for dy in range(3) for dx in range(3)) / 9.0
 
 
 def resolve_device(device: str | None) -> str:
@@ -271,6 +161,9 @@ class Renderer:
         self.light_tracing_possible = possible
         self.light_tracing = wanted and possible
         self.features = dataclasses.replace(self.features, light_tracing=self.light_tracing)
+        # refused before anything is compiled or allocated: a film the machine cannot hold, or Warp cannot index
+        check_film_size(self.scene.width, self.scene.height, self.replicates, self.features.moments,
+                        self.light_tracing, self.device)
         self.kernel = render_kernel(self.features)
         self.light_kernel = light_kernel(self.features) if self.light_tracing else None
         t0 = time.perf_counter()
@@ -282,24 +175,43 @@ class Renderer:
         with wp.ScopedDevice(self.device):
             self.dscene = DeviceScene(self.scene, self.device, self.triangles)
 
+    def new_film(self) -> Film:
+        """Empty accumulators for this renderer's passes (``render_passes(film=...)`` adds to them)."""
+        s = self.scene
+        return Film(s.width, s.height, self.replicates, self.features.moments, self.light_kernel is not None,
+                    self._tiles(), self.device, "replicates" if self.sampler == "sobol" else "passes")
+
     def render_passes(
         self,
         seed: int = 0,
         first_pass: int = 0,
         count: int = 1,
-        progress: bool = False,
+        progress=False,
         callback: Callable[[int, "PassSum"], object] | None = None,
+        film: Film | None = None,
     ) -> PassSum:
         """Render passes ``first_pass .. first_pass + count - 1`` of ``seed``; returns their sums.
 
-        ``callback(pass_index, sums_so_far)`` runs after each pass; returning False stops early (the sums
-        then hold the passes done, nothing is lost).
+        ``film``: add them to this film (``new_film``; it must have been continued from pass ``first_pass``, or be
+        empty) instead of a fresh one, and return all of its sums. ``progress``: a bar (True), none (False), or an
+        object with ``update(n)`` to report passes to. ``callback(pass_index, sums_so_far)`` runs after each pass;
+        returning False stops early (the sums then hold the passes done, nothing is lost).
         """
+        film = self.new_film() if film is None else film
+        self.render_into(film, seed, first_pass, count, progress, callback)
+        return film.sums()
+
+    def render_into(self, film: Film, seed: int, first_pass: int, count: int, progress=False,
+                    callback: Callable[[int, "PassSum"], object] | None = None) -> int:
+        """Add passes ``first_pass ..`` (``count`` of them) of ``seed`` to ``film``; returns the number added."""
         seed = _check_int("seed", seed, 0, UINT32_LIMIT)
         count = _check_int("spp", count, 1)
         first_pass = _check_int("first_pass", first_pass, 0, UINT32_LIMIT)
         if first_pass + count > UINT32_LIMIT:
             raise RenderError("pass indices must stay below 2^32")
+        if film.passes and first_pass != film.next_pass:
+            raise RenderError(f"the film holds passes up to {film.next_pass - 1}: it continues with pass "
+                              f"{film.next_pass}, not {first_pass}")
         s = self.scene
         npix = s.width * s.height
         tiles = self._tiles()
@@ -307,17 +219,7 @@ class Renderer:
         # one with a callback, which runs after every pass
         per_launch = 1 if callback is not None else max(1, min(MAX_PASSES_PER_LAUNCH, LAUNCH_SAMPLES * tiles // npix))
         chunks = [(p, min(per_launch, first_pass + count - p)) for p in range(first_pass, first_pass + count, per_launch)]
-        with wp.ScopedDevice(self.device):
-            accum = wp.zeros(npix, dtype=wp.vec3d)
-            accum_sq = wp.zeros(npix, dtype=wp.vec3d)
-            accum_rep = wp.zeros(self.replicates * npix, dtype=wp.vec3d)
-            accum_m2 = wp.zeros(npix if self.features.moments else 1, dtype=wp.vec3d)
-            discarded = wp.zeros(tiles, dtype=wp.int32)  # one counter per tile
-            rays = wp.zeros(tiles, dtype=wp.int64)
-            lt = None
-            if self.light_kernel is not None:
-                lt = {k: wp.zeros(npix, dtype=wp.vec3d) for k in ("splat", "sum", "sum_sq")}
-                lt["discarded"] = wp.zeros(1, dtype=wp.int32)
+        lt = film.lt
         rows_of = [len(range(t, s.height, tiles)) for t in range(tiles)]
         it = s.integrator
 
@@ -338,8 +240,8 @@ class Renderer:
         # one recorded launch per tile: later launches only swap the pass parameters (cheaper than wp.launch)
         cmds = [wp.launch(self.kernel, dim=rows_of[t] * s.width,
                           inputs=[self.dscene.data, self.dscene.camera, params(t, first_pass)],
-                          outputs=[accum, accum_sq, accum_rep, accum_m2, discarded, rays], device=self.device,
-                          record_cmd=True)
+                          outputs=[film.accum, film.accum_sq, film.accum_rep, film.accum_m2, film.discarded,
+                                   film.rays], device=self.device, record_cmd=True)
                 for t in range(tiles)]
 
         def launch(tile: int, first: int, n: int):
@@ -363,10 +265,12 @@ class Renderer:
                     fold.launch()
 
         bar = None
-        if progress:
+        if progress is True:
             from tqdm import tqdm
 
             bar = tqdm(total=count, unit="pass", desc="rendering", leave=False, dynamic_ncols=True)
+        elif progress:
+            bar = progress  # the caller's, over more than this call
         done = 0
         t0 = time.perf_counter()
         pool = self._worker_pool()
@@ -391,13 +295,17 @@ class Renderer:
                         bar.update(n)
                     if callback is not None:
                         wp.synchronize_device(self.device)
-                        if callback(first + n - 1, self._sums(accum, accum_sq, accum_rep, accum_m2, discarded, rays, first_pass, done, t0, lt)) is False:
-                            break
+                        film.added(first, n, time.perf_counter() - t0)
+                        t0 = time.perf_counter()
+                        if callback(first + n - 1, film.sums()) is False:
+                            return done
             wp.synchronize_device(self.device)
+            if callback is None:
+                film.added(first_pass, done, time.perf_counter() - t0)
         finally:
-            if bar is not None:
+            if bar is not None and progress is True:
                 bar.close()
-        return self._sums(accum, accum_sq, accum_rep, accum_m2, discarded, rays, first_pass, done, t0, lt)
+        return done
 
     def _tiles(self) -> int:
         """Row sets the image is split into: one per thread would leave a core idle whenever the other thread runs
@@ -497,26 +405,6 @@ class Renderer:
             raise
         return passes_before[-1]
 
-    def _sums(self, accum, accum_sq, accum_rep, accum_m2, discarded, rays, first: int, done: int, t0: float,
-              lt=None) -> PassSum:
-        s = self.scene
-        shape = (s.height, s.width, 3)
-        R = self.replicates
-        passes = np.arange(first, first + done, dtype=np.int64)
-        sums = PassSum(accum.numpy().reshape(shape).copy(), accum_sq.numpy().reshape(shape).copy(),
-                       done, int(discarded.numpy().sum()), time.perf_counter() - t0, int(rays.numpy().sum()),
-                       rep_sum=accum_rep.numpy().reshape((R,) + shape).copy(),
-                       rep_passes=np.bincount(passes % R, minlength=R),
-                       estimator="replicates" if self.sampler == "sobol" else "passes")
-        if self.features.moments:
-            sums.m2_sum = accum_m2.numpy().reshape(shape).copy()
-        if lt is not None:
-            sums.lt_sum = lt["sum"].numpy().reshape(shape).copy()
-            sums.lt_sum_sq = lt["sum_sq"].numpy().reshape(shape).copy()
-            sums.discarded += int(lt["discarded"].numpy()[0])
-        return sums
-
-
 _lock = threading.Lock()
 
 
@@ -540,6 +428,14 @@ def render(
     callback: Callable[[int, PassSum], object] | None = None,
     stats: dict | None = None,
     layers: dict | None = None,
+    time_limit: float | None = None,
+    target_error: float | None = None,
+    checkpoint: str | os.PathLike | None = None,
+    checkpoint_every: float = 30.0,
+    resume: bool = False,
+    preview=None,
+    preview_every: float | None = None,
+    stop=None,
 ) -> np.ndarray:
     """Render ``scene``; returns linear radiance, float32 (H, W, 3).
 
@@ -564,11 +460,36 @@ def render(
     used, and the pilot's figures when "auto" ran one), threads, device, roulette_warning (None, or why the seed
     roulette rule has an infinite variance on this scene).
     layers, if given, receives the extra image layers of the scene's integrator (Mitsuba's moment integrator: the
-    nested one's mean XYZ and per-sample second moment, ``Integrator.layer_names``), float32 (H, W, 3) each.
+    nested one's mean XYZ and per-sample second moment, ``Integrator.layer_names``), float32 (H, W, 3) each, and,
+    for a render with a time or error budget or a checkpoint, "stderr" (the standard error of each pixel's mean).
+
+    Budgets (pathtracer/jobs.py): the render stops at the first of spp passes, ``time_limit`` seconds of rendering
+    (it stops when the next pass would overrun) and ``target_error`` (``relmse_estimate`` at or below it, after a
+    minimum of passes); with a time or error budget and no spp, spp is unbounded. ``checkpoint``: a file the sums
+    are saved to every ``checkpoint_every`` seconds and at the end (atomically); ``resume`` continues from it, bit
+    for bit (a checkpoint of another scene or configuration is refused). ``preview``: a path (or a callable taking
+    the image) that gets the image so far every ``preview_every`` seconds. ``stop``: a ``jobs.StopFlag``; when set
+    (for example by SIGINT, ``jobs.handle_signals``) the render stops after its current unit of passes and
+    returns the image so far. stats then also has stop_reason ("spp", "time", "target_error" or "interrupted")
+    and resumed_passes.
     """
+    from pathtracer import estimator, jobs  # (both import render.py itself)
+
     t_wall = time.perf_counter()
+    budgeted = time_limit is not None or target_error is not None
+    if time_limit is not None and not (isinstance(time_limit, (int, float)) and time_limit > 0):
+        raise RenderError(f"time_limit must be > 0 seconds, got {time_limit!r}")
+    if target_error is not None and not (isinstance(target_error, (int, float)) and target_error > 0):
+        raise RenderError(f"target_error must be > 0, got {target_error!r}")
+    if checkpoint_every <= 0:
+        raise RenderError(f"checkpoint_every must be > 0 seconds, got {checkpoint_every!r}")
+    if resume and checkpoint is None:
+        raise RenderError("resume needs a checkpoint")
+    if spp is None and budgeted:
+        spp = jobs.MAX_PASSES  # bounded by time or error alone
     spp = scene.spp if spp is None else spp
-    spp = _check_int("spp", spp, 1)
+    spp = _check_int("spp", spp, 1, UINT32_LIMIT)
+    pilot_spp = min(spp, 256) if budgeted else spp  # a pilot sized for a time or error budget, not for its bound
     seed = scene.sampler_seed if seed is None else seed
     seed = _check_int("seed", seed, 0, UINT32_LIMIT)
     auto = light_tracing is None or light_tracing == "auto"
@@ -578,36 +499,73 @@ def render(
     roulette_warning = roulette_variance_warning(scene, r.rr, r.max_depth)
     if roulette_warning:  # detected and reported before any time is spent, never silently averaged
         warnings.warn(f"{scene.source}: {roulette_warning}", RuntimeWarning, stacklevel=2)
-    from pathtracer import estimator  # (imports render.py itself)
 
     compile_seconds = r.compile_seconds
-    if auto and callback is None and r.light_tracing_possible and estimator.pilot_passes(spp, r.replicates):
-        traced = Renderer(scene, light_tracing=True, **opts)
-        compile_seconds += traced.compile_seconds
-        try:
-            result = estimator.render_auto(r, traced, seed, spp, progress=progress)
-        finally:
+    config = {"sampler": r.sampler, "replicates": r.replicates, "light_samples": r.light_samples,
+              "light_sampling": r.light_sampling, "rr": r.rr, "max_depth": r.max_depth, "triangles": r.triangles,
+              "light_tracing_choice": "auto" if auto else "fixed"}
+    traced = None
+    stop_reason, extra_seconds, resumed = "spp", 0.0, 0
+    try:
+        if callback is not None:
+            result = r.render_passes(seed=seed, first_pass=0, count=spp, progress=progress, callback=callback)
+            config["light_tracing"] = r.light_tracing
+        else:
+            may_trace = auto and r.light_tracing_possible and estimator.pilot_passes(pilot_spp, r.replicates) > 0
+            if may_trace and resume:  # compile the light tracer only if the checkpoint's render used it
+                may_trace = bool(jobs.read_checkpoint(checkpoint)[2].get("light_tracing"))
+            if may_trace:
+                traced = Renderer(scene, light_tracing=True, **opts)
+                compile_seconds += traced.compile_seconds
+            job_config = dict(config, view=view, seed=seed, width=scene.width, height=scene.height,
+                              device="cpu" if r.device == "cpu" else "cuda")
+            if checkpoint is not None:
+                job_config["scene_hash"] = jobs.scene_hash(scene)
+            write_preview = None
+            if preview is not None:
+                def write_preview(sums: PassSum):
+                    if callable(preview):
+                        preview(sums.mean)
+                    else:
+                        from pathtracer.imageio import write_image
+
+                        write_image(preview, sums.mean, display=view != "radiance")
+            bar = None
+            if progress:
+                from tqdm import tqdm
+
+                bar = tqdm(total=spp if spp < jobs.MAX_PASSES else None, unit="pass", desc="rendering",
+                           leave=False, dynamic_ncols=True)
+            try:
+                outcome = jobs.run_job(r, traced, seed, jobs.Budget(spp, time_limit, target_error), auto=auto,
+                                       pilot_spp=pilot_spp, checkpoint=None if checkpoint is None else
+                                       os.fspath(checkpoint), checkpoint_every=checkpoint_every, resume=resume,
+                                       preview=write_preview, preview_every=preview_every, stop=stop,
+                                       progress=bar if bar is not None else False, base_config=job_config)
+            finally:
+                if bar is not None:
+                    bar.close()
+            result = outcome.sums
+            stop_reason, extra_seconds, resumed = outcome.stop_reason, outcome.extra_seconds, outcome.resumed_passes
+            config.update({k: v for k, v in outcome.config.items() if k in ("light_tracing", "pilot")})
+    finally:
+        if traced is not None:
             traced.close()
-        config_extra = result.config
-    else:
-        result = r.render_passes(seed=seed, first_pass=0, count=spp, progress=progress, callback=callback)
-        config_extra = {"light_tracing": r.light_tracing}
-    r.close()
+        r.close()
     if layers is not None:
         layers.update(result.layers(scene.integrator.layer_names))
+        if budgeted or checkpoint is not None:
+            layers["stderr"] = np.sqrt(result.variance_of_mean).astype(np.float32)
     if result.discarded:
         warnings.warn(f"{scene.source}: {result.discarded} non-finite samples were discarded", RuntimeWarning,
                       stacklevel=2)
     if stats is not None:
-        config = {"sampler": r.sampler, "replicates": r.replicates, "light_samples": r.light_samples,
-                  "light_sampling": r.light_sampling, "rr": r.rr, "max_depth": r.max_depth, "triangles": r.triangles,
-                  "light_tracing_choice": "auto" if auto else "fixed"}
-        config.update(config_extra)
         pixels = scene.width * scene.height
-        seconds = result.seconds
+        seconds = result.seconds + extra_seconds  # (with a resumed render: the earlier sessions' too)
         stats.update(spp=result.passes, render_seconds=seconds, seconds=seconds, compile_seconds=compile_seconds,
                      wall_seconds=time.perf_counter() - t_wall,
                      samples=result.passes * pixels, samples_per_second=result.passes * pixels / max(seconds, 1e-12),
                      relmse_estimate=result.relmse_estimate, discarded=result.discarded, config=config,
-                     threads=r.threads, device=r.device, roulette_warning=roulette_warning)
+                     threads=r.threads, device=r.device, roulette_warning=roulette_warning,
+                     stop_reason=stop_reason, resumed_passes=resumed)
     return result.mean
