@@ -29,7 +29,7 @@ from pathtracer.film import PassSum
 CHECKPOINT_FORMAT = "pathtracer-checkpoint"
 CHECKPOINT_VERSION = 1
 UNIT_SECONDS = 1.0  # a unit's target length when the job must look up between units (budgets, checkpoints, signals)
-FIRST_UNIT_SAMPLES = 1 << 17  # the first unit, before the time per pass is known
+FIRST_UNIT_SAMPLES = 1 << 14  # the first unit, before the time per pass is known
 MIN_TARGET_PASSES = 16  # a target error may stop the render only after this many passes (and 4 per replicate)
 MAX_PASSES = 2**32 - 1
 
@@ -394,10 +394,6 @@ def human_bytes(n: float) -> str:
 def check_film_size(width: int, height: int, replicates: int, moments: bool, light_tracing: bool,
                     device: str) -> None:
     """Refuse, before anything is compiled or allocated, a film the machine cannot hold or Warp cannot index."""
-    pixels = width * height
-    if replicates * pixels >= 2**31:
-        raise RenderError(f"a {width}x{height} film has {pixels} pixels; with {replicates} replicates its sums "
-                          f"need more than 2^31 entries, the most a Warp array can index")
     need = film_bytes(width, height, replicates, moments, light_tracing)
     if device == "cpu":
         have = available_memory()
@@ -411,3 +407,7 @@ def check_film_size(width: int, height: int, replicates: int, moments: bool, lig
     if have is not None and need > have:
         raise RenderError(f"a {width}x{height} film needs about {human_bytes(need)} of memory for its sums, "
                           f"{'this machine' if device == 'cpu' else device} has {human_bytes(have)} available")
+    pixels = width * height
+    if replicates * pixels >= 2**31:
+        raise RenderError(f"a {width}x{height} film has {pixels} pixels; with {replicates} replicates its sums "
+                          f"need more than 2^31 entries, the most a Warp array can index")

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import pathtracer
-from pathtracer import cli, imageio
+from pathtracer import cli, imageio, jobs
 from pathtracer.errors import ImageIOError, RenderError, SceneError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -226,6 +226,7 @@ def test_all_options_reach_render(tmp_path, scene_file, fakes, capsys):
     assert cli.main(argv) == 0
     (call,) = fakes.render_calls
     assert isinstance(call.pop("stats"), dict)
+    assert isinstance(call.pop("stop"), jobs.StopFlag)  # SIGINT/SIGTERM stop the render through it
     assert call == dict(spp=16, max_depth=-1, seed=2**32 - 1, device="cpu", light_samples=4, rr="throughput",
                         threads=3, view="normal", progress=False, sampler="sobol", light_sampling="solid_angle",
                         light_tracing=True, triangles="warp")
@@ -243,6 +244,7 @@ def test_options_left_out_are_not_passed(tmp_path, scene_file, fakes, capsys):
     assert cli.main([str(scene_file), "-o", str(out), "--device", "cuda:1"]) == 0
     (call,) = fakes.render_calls
     call.pop("stats")
+    call.pop("stop")
     assert call == dict(device="cuda:1", view="radiance", progress=True)  # the rest: scene file / defaults
     assert re.fullmatch(rf"wrote {re.escape(str(out))}: 5x4, 3 spp, 0\.50 s \+ 1\.25 s compile, [0-9.]+ M samples/s\n",
                         capsys.readouterr().out)

@@ -142,8 +142,11 @@ def test_films_too_large_are_refused_before_anything_is_compiled():
         pathtracer.Renderer(scene, device="cpu")
     assert "40000x40000 film needs about" in str(e.value) and "available" in str(e.value)
     scene.width = scene.height = 200000
-    with pytest.raises(RenderError, match="more than 2\\^31 entries"):
+    with pytest.raises(RenderError) as e:
         pathtracer.Renderer(scene, device="cpu")
+    assert "200000x200000 film" in str(e.value) and "\n" not in str(e.value)
+    with pytest.raises(RenderError, match="more than 2\\^31 entries"):  # where memory would allow it
+        jobs.check_film_size(50000, 50000, 4, False, False, "cuda:99")
 
 
 # ---------------------------------------------------------------- the command line, in processes
