@@ -937,7 +937,8 @@ def test_shared_bunny_ply_with_body_comments_is_rejected(tmp_path):
     """data/meshes/bunny_res4.ply has 'comment' lines among its faces: Mitsuba refuses it too."""
     bunny = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes" / "bunny_res4.ply"
     if not bunny.exists():
-        pytest.skip(f"shared data not present: {bunny} (../shared beside the repository)")
+        pytest.fail(f"shared data not present: {bunny} (CI and the README's test command run with ../shared "
+                    f"beside the repository)")
     p = write(tmp_path, scene_xml(f'<shape type="ply"><string name="filename" value="{bunny}"/></shape>'))
     with pytest.raises(SceneError, match="could not be read as PLY"):
         load_file(p)

@@ -324,6 +324,7 @@ def test_mitsuba_defaults_we_rely_on():
 def test_mitsuba_also_refuses_the_shared_bunny_ply():
     bunny = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes" / "bunny_res4.ply"
     if not bunny.exists():
-        pytest.skip(f"shared data not present: {bunny} (../shared beside the repository)")
+        pytest.fail(f"shared data not present: {bunny} (CI and the README's test command run with ../shared "
+                    f"beside the repository)")
     with pytest.raises(RuntimeError, match="could not parse"):
         mi.load_dict({"type": "ply", "filename": str(bunny)})
