@@ -39,8 +39,8 @@ def pilot_seed(seed: int) -> int:
 
 @dataclass
 class Combined:
-    """Means of independent estimators of one image, with fixed weights summing to 1 (``render_auto``: the winner's
-    1, the loser's pilot 0, which still counts in ``seconds``)."""
+    """Means of independent estimators of one image, with fixed weights summing to 1 (as the pilot weighs its
+    candidates: the winner's 1, the loser's 0, which still counts in ``seconds``)."""
 
     parts: list[PassSum]
     weights: list[float]
@@ -123,6 +123,10 @@ class Pilot:
     def winner(self) -> str:
         return "light_tracing" if self.use_light_tracing else "path"
 
+    @property
+    def loser(self) -> str:
+        return "path" if self.use_light_tracing else "light_tracing"
+
 
 def run_pilot(path: Renderer, traced: Renderer, seed: int, spp: int, progress=False) -> Pilot:
     """Render the pilot passes with both renderers (``path``: light tracing off, ``traced``: on) and decide."""
@@ -150,16 +154,3 @@ def run_pilot(path: Renderer, traced: Renderer, seed: int, spp: int, progress=Fa
         "pilot_seconds": {"path": a.seconds, "light_tracing": b.seconds},
         "weights": {"path": weights[0], "light_tracing": weights[1]}}}
     return Pilot(use_lt, {"path": fa, "light_tracing": fb}, {"path": seed, "light_tracing": seed_b}, p, config)
-
-
-def render_auto(path: Renderer, traced: Renderer, seed: int, spp: int, progress: bool = False) -> Combined:
-    """Pilot both renderers (``path``: light tracing off, ``traced``: on), then finish with the better one: it
-    continues its own film (its pilot passes first), up to spp passes."""
-    pilot = run_pilot(path, traced, seed, spp, progress)
-    renderer = traced if pilot.use_light_tracing else path
-    film = pilot.films[pilot.winner]
-    loser = pilot.films["path" if pilot.use_light_tracing else "light_tracing"]
-    renderer.render_into(film, pilot.seeds[pilot.winner], pilot.passes, spp - pilot.passes, progress)
-    parts = {pilot.winner: film.sums(), "path" if pilot.use_light_tracing else "light_tracing": loser.sums()}
-    w = pilot.config["pilot"]["weights"]
-    return Combined([parts["path"], parts["light_tracing"]], [w["path"], w["light_tracing"]], pilot.config)

@@ -183,22 +183,15 @@ def write_checkpoint(path: str | os.PathLike, sums: PassSum, next_pass: int, con
         raise RenderError(f"{path}: cannot write checkpoint: {e.strerror or e}") from None
 
 
+def checkpoint_config(path: str | os.PathLike) -> dict:
+    """The configuration a checkpoint was made with, read without its sums (CheckpointError as ``read_checkpoint``)."""
+    return _load(os.fspath(path), meta_only=True)[0]["config"]
+
+
 def read_checkpoint(path: str | os.PathLike) -> tuple[PassSum, int, dict]:
     """(sums, next pass, configuration) of a checkpoint; CheckpointError (one line) if it cannot be used."""
     path = os.fspath(path)
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-        meta = json.loads(bytes(data.pop("meta")).decode())
-    except FileNotFoundError:
-        raise CheckpointError(f"{path}: no checkpoint to resume from (no such file)") from None
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, UnicodeDecodeError) as e:
-        raise CheckpointError(f"{path}: checkpoint is corrupt or truncated ({type(e).__name__})") from None
-    if not isinstance(meta, dict) or meta.get("format") != CHECKPOINT_FORMAT:
-        raise CheckpointError(f"{path}: not a pathtracer checkpoint")
-    if meta.get("version") != CHECKPOINT_VERSION:
-        raise CheckpointError(f"{path}: checkpoint version {meta.get('version')} (this pathtracer reads "
-                              f"{CHECKPOINT_VERSION})")
+    meta, data = _load(path)
     try:
         if _digest(data) != meta["digest"]:
             raise CheckpointError(f"{path}: checkpoint is corrupt (its sums do not match their checksum)")
@@ -210,6 +203,26 @@ def read_checkpoint(path: str | os.PathLike) -> tuple[PassSum, int, dict]:
         raise
     except (KeyError, TypeError, ValueError) as e:
         raise CheckpointError(f"{path}: checkpoint is corrupt ({type(e).__name__}: {e})") from None
+
+
+def _load(path: str, meta_only: bool = False) -> tuple[dict, dict]:
+    """A checkpoint's checked header and (unless ``meta_only``) its arrays."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            data = {k: z[k] for k in (["meta"] if meta_only else z.files)}
+        meta = json.loads(bytes(data.pop("meta")).decode())
+    except FileNotFoundError:
+        raise CheckpointError(f"{path}: no checkpoint to resume from (no such file)") from None
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, UnicodeDecodeError) as e:
+        raise CheckpointError(f"{path}: checkpoint is corrupt or truncated ({type(e).__name__})") from None
+    if not isinstance(meta, dict) or meta.get("format") != CHECKPOINT_FORMAT:
+        raise CheckpointError(f"{path}: not a pathtracer checkpoint")
+    if meta.get("version") != CHECKPOINT_VERSION:
+        raise CheckpointError(f"{path}: checkpoint version {meta.get('version')} (this pathtracer reads "
+                              f"{CHECKPOINT_VERSION})")
+    if not isinstance(meta.get("config"), dict):
+        raise CheckpointError(f"{path}: checkpoint is corrupt (no configuration)")
+    return meta, data
 
 
 def check_config(path: str, saved: dict, wanted: dict) -> None:
@@ -242,13 +255,13 @@ def _pixels(scene) -> int:
     return scene.width * scene.height
 
 
-def run_job(path_renderer, traced_renderer, seed: int, budget: Budget, *, auto: bool, pilot_spp: int,
+def run_job(path_renderer, traced_renderer, seed: int, budget: Budget, *, pilot_spp: int,
             checkpoint: str | None = None, checkpoint_every: float = 30.0, resume: bool = False,
             preview=None, preview_every: float | None = None, stop: StopFlag | None = None,
             progress=False, base_config: dict | None = None) -> Outcome:
     """Render until a bound of ``budget`` is reached or ``stop`` is set.
 
-    ``traced_renderer``: the light-tracing candidate when ``auto`` may pick it (else None): the pilot
+    ``traced_renderer``: the light-tracing candidate when the auto estimator may pick it (else None): the pilot
     (pathtracer/estimator.py, sized from ``pilot_spp``) decides, and its winner's passes continue. ``checkpoint``:
     written every ``checkpoint_every`` seconds and at the end; with ``resume`` the job continues from it (refused if
     it belongs to another scene or configuration). ``preview(sums)`` is called every ``preview_every`` seconds.
@@ -256,14 +269,14 @@ def run_job(path_renderer, traced_renderer, seed: int, budget: Budget, *, auto: 
     if stop is not None:
         stop.armed = True
     try:
-        return _run_job(path_renderer, traced_renderer, seed, budget, auto, pilot_spp, checkpoint, checkpoint_every,
+        return _run_job(path_renderer, traced_renderer, seed, budget, pilot_spp, checkpoint, checkpoint_every,
                         resume, preview, preview_every, stop, progress, base_config)
     finally:
         if stop is not None:
             stop.armed = False
 
 
-def _run_job(path_renderer, traced_renderer, seed, budget, auto, pilot_spp, checkpoint, checkpoint_every, resume,
+def _run_job(path_renderer, traced_renderer, seed, budget, pilot_spp, checkpoint, checkpoint_every, resume,
              preview, preview_every, stop, progress, base_config) -> Outcome:
     from pathtracer import estimator
 
@@ -297,13 +310,11 @@ def _run_job(path_renderer, traced_renderer, seed, budget, auto, pilot_spp, chec
         if "pilot" in saved:
             config["pilot"] = saved["pilot"]
         resumed = sums.passes
-    elif auto and traced_renderer is not None and estimator.pilot_passes(pilot_spp, path_renderer.replicates) \
-            and 2 * estimator.pilot_passes(pilot_spp, path_renderer.replicates) <= budget.spp:
+    elif traced_renderer is not None:  # (the caller checked that pilot_spp leaves room for a pilot)
         pilot = estimator.run_pilot(path_renderer, traced_renderer, seed, pilot_spp, progress)
         config.update(pilot.config)
         film = pilot.films[pilot.winner]
-        loser = pilot.films["path" if pilot.use_light_tracing else "light_tracing"]
-        extra_seconds = loser.seconds
+        extra_seconds = pilot.films[pilot.loser].seconds
         if pilot.use_light_tracing:
             renderer, run_seed = traced_renderer, pilot.seeds["light_tracing"]
     else:
@@ -343,14 +354,22 @@ def _run_job(path_renderer, traced_renderer, seed, budget, auto, pilot_spp, chec
         renderer.render_into(film, run_seed, film.next_pass, n, progress)
         sec_per_pass = (time.perf_counter() - t0) / n
         now = time.perf_counter()
+        unit_sums = None  # one host copy per unit, shared by whatever needs it
+
+        def sums() -> PassSum:
+            nonlocal unit_sums
+            if unit_sums is None:
+                unit_sums = film.sums()
+            return unit_sums
+
         done_target = False
         if budget.target_error is not None and film.passes >= max(budget.min_passes, 4 * renderer.replicates):
-            done_target = film.sums().relmse_estimate <= budget.target_error
+            done_target = sums().relmse_estimate <= budget.target_error
         if checkpoint is not None and now - last_checkpoint >= checkpoint_every:
-            write_checkpoint(checkpoint, film.sums(), film.next_pass, config)
+            write_checkpoint(checkpoint, sums(), film.next_pass, config)
             last_checkpoint = time.perf_counter()
         if preview is not None and preview_every is not None and now - last_preview >= preview_every:
-            preview(film.sums())
+            preview(sums())
             last_preview = time.perf_counter()
         if done_target:
             stop_reason = "target_error"

@@ -29,6 +29,7 @@ from pathtracer.device_scene import DeviceScene
 from pathtracer.diagnostics import roulette_variance_warning
 from pathtracer.errors import RenderError
 from pathtracer.film import SRGB_TO_XYZ, Film, PassSum, box3  # noqa: F401 (re-exported)
+from pathtracer import jobs
 from pathtracer.jobs import check_film_size
 from pathtracer.scene import Scene
 from pathtracer.warp_setup import init_warp
@@ -473,7 +474,7 @@ def render(
     returns the image so far. stats then also has stop_reason ("spp", "time", "target_error" or "interrupted")
     and resumed_passes.
     """
-    from pathtracer import estimator, jobs  # (both import render.py itself)
+    from pathtracer import estimator  # (it imports render.py itself)
 
     t_wall = time.perf_counter()
     budgeted = time_limit is not None or target_error is not None
@@ -513,7 +514,7 @@ def render(
         else:
             may_trace = auto and r.light_tracing_possible and estimator.pilot_passes(pilot_spp, r.replicates) > 0
             if may_trace and resume:  # compile the light tracer only if the checkpoint's render used it
-                may_trace = bool(jobs.read_checkpoint(checkpoint)[2].get("light_tracing"))
+                may_trace = bool(jobs.checkpoint_config(checkpoint).get("light_tracing"))
             if may_trace:
                 traced = Renderer(scene, light_tracing=True, **opts)
                 compile_seconds += traced.compile_seconds
@@ -537,7 +538,7 @@ def render(
                 bar = tqdm(total=spp if spp < jobs.MAX_PASSES else None, unit="pass", desc="rendering",
                            leave=False, dynamic_ncols=True)
             try:
-                outcome = jobs.run_job(r, traced, seed, jobs.Budget(spp, time_limit, target_error), auto=auto,
+                outcome = jobs.run_job(r, traced, seed, jobs.Budget(spp, time_limit, target_error),
                                        pilot_spp=pilot_spp, checkpoint=None if checkpoint is None else
                                        os.fspath(checkpoint), checkpoint_every=checkpoint_every, resume=resume,
                                        preview=write_preview, preview_every=preview_every, stop=stop,
