@@ -116,6 +116,11 @@ def build_parser() -> argparse.ArgumentParser:
                    "to an uninterrupted render)")
     p.add_argument("--preview-every", type=float, metavar="SECONDS",
                    help="write the image so far to the output file this often")
+    p.add_argument("--ray", metavar="ADDRESS", help="render on Ray workers: local (start Ray on this machine) or "
+                   "the address of a running cluster (auto, or HOST:PORT of `ray start --head`); needs "
+                   "pip install 'pathtracer[ray]'")
+    p.add_argument("--ray-workers", type=int, metavar="N", help="Ray workers to start (default: one per CPU of "
+                   "the cluster, or per GPU with --device cuda; each renders with --threads threads, default 1)")
     p.add_argument("--view", choices=("radiance", "direction", "normal"), default="radiance", help="what to render (default: radiance)")
     p.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE", help="set scene parameter $NAME (repeatable)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -143,6 +148,12 @@ def validate(args: argparse.Namespace) -> dict[str, str]:
             raise UsageError(f"{name} must be > 0, got {value}")
     if args.resume and args.checkpoint is None:
         raise UsageError("--resume needs --checkpoint PATH")
+    if args.ray_workers is not None and args.ray_workers <= 0:
+        raise UsageError(f"--ray-workers must be > 0, got {args.ray_workers}")
+    if args.ray_workers is not None and args.ray is None:
+        raise UsageError("--ray-workers needs --ray")
+    if args.ray is not None and not args.ray.strip():
+        raise UsageError("--ray needs local or a cluster address")
     if args.checkpoint is not None:
         ck_dir = os.path.dirname(os.path.abspath(args.checkpoint))
         if os.path.isdir(args.checkpoint) or not os.path.isdir(ck_dir) or not os.access(ck_dir, os.W_OK | os.X_OK):
@@ -291,11 +302,23 @@ def _run(args: argparse.Namespace, params: dict, stop, t_start: float | None) ->
             kwargs["layers"] = layers
         if _accepts(pathtracer.render, "stop"):
             kwargs["stop"] = stop
+        executor = None
+        if args.ray is not None:
+            from pathtracer.ray_executor import RayExecutor
+
+            cuda = (args.device or "").startswith("cuda")
+            executor = RayExecutor(args.ray, workers=args.ray_workers, cpus_per_worker=args.threads or 1,
+                                   gpus_per_worker=1 if cuda else 0)
+            kwargs["executor"] = executor
         t0 = time.perf_counter()
-        with warnings.catch_warnings():
-            if stats is not None:  # reported in the summary line instead
-                warnings.filterwarnings("ignore", message=r".*non-finite samples", category=RuntimeWarning)
-            image = pathtracer.render(scene, **kwargs)
+        try:
+            with warnings.catch_warnings():
+                if stats is not None:  # reported in the summary line instead
+                    warnings.filterwarnings("ignore", message=r".*non-finite samples", category=RuntimeWarning)
+                image = pathtracer.render(scene, **kwargs)
+        finally:
+            if executor is not None:
+                executor.close()
         elapsed = time.perf_counter() - t0
         interrupted = (stats or {}).get("stop_reason") == "interrupted"
         if interrupted and not (stats or {}).get("spp"):
@@ -336,7 +359,10 @@ def _run(args: argparse.Namespace, params: dict, stop, t_start: float | None) ->
         seconds, compile_seconds = elapsed, None
     samples = int(stats["samples"]) if "samples" in stats else w * h * (spp or 0)
     discarded = int(stats.get("discarded", 0))
-    summary = _summary(args.output, image, spp, stats.get("device"), seconds, compile_seconds, samples, discarded)
+    device = stats.get("device")
+    if device and stats.get("executor"):
+        device += f" (Ray, {stats['executor']['workers']} workers)"
+    summary = _summary(args.output, image, spp, device, seconds, compile_seconds, samples, discarded)
     reason = stats.get("stop_reason")
     if reason in ("time", "target_error"):
         summary += f" (stopped by {'--time' if reason == 'time' else '--target-error'}, estimated relMSE " \

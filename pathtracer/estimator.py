@@ -133,6 +133,9 @@ def run_pilot(path: Renderer, traced: Renderer, seed: int, spp: int, progress=Fa
     p = pilot_passes(spp, path.replicates)
     seed_b = pilot_seed(seed)
     fa, fb = path.new_film(), traced.new_film()
+    if hasattr(path, "start"):  # the Ray farm: both candidates' units handed out before waiting for either
+        path.start(fa, seed, 0, p)
+        traced.start(fb, seed_b, 0, p)
     path.render_into(fa, seed, 0, p, progress)
     traced.render_into(fb, seed_b, 0, p, progress)
     a, b = fa.sums(), fb.sums()

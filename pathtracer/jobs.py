@@ -230,7 +230,7 @@ def check_config(path: str, saved: dict, wanted: dict) -> None:
     if saved.get("scene_hash") != wanted.get("scene_hash"):
         raise CheckpointError(f"{path}: checkpoint is of another scene (or the scene has changed since)")
     for k in sorted(set(saved) | set(wanted)):
-        if k in ("scene_hash", "light_tracing", "pilot"):
+        if k in ("scene_hash", "light_tracing", "pilot", "unit_passes"):  # (unit_passes: see ray_executor.py)
             continue
         if saved.get(k) != wanted.get(k):
             raise CheckpointError(f"{path}: checkpoint was made with {k} = {saved.get(k)!r}, this render has "
@@ -315,15 +315,31 @@ def _run_job(path_renderer, traced_renderer, seed, budget, pilot_spp, checkpoint
         config.update(pilot.config)
         film = pilot.films[pilot.winner]
         extra_seconds = pilot.films[pilot.loser].seconds
+        if hasattr(pilot.films[pilot.loser], "close"):
+            pilot.films[pilot.loser].close()
         if pilot.use_light_tracing:
             renderer, run_seed = traced_renderer, pilot.seeds["light_tracing"]
     else:
         film = path_renderer.new_film()
         config["light_tracing"] = bool(path_renderer.light_tracing)
 
+    if hasattr(film, "horizon"):  # the Ray farm renders ahead, up to the bound (pathtracer/ray_executor.py)
+        film.horizon = budget.spp
+    try:
+        return _loop(renderer, film, run_seed, budget, checkpoint, checkpoint_every, preview, preview_every,
+                     stop, progress, config, looks_up, t_start, extra_seconds, resumed)
+    finally:
+        if hasattr(film, "close"):
+            film.close()
+
+
+def _loop(renderer, film, run_seed, budget, checkpoint, checkpoint_every, preview, preview_every, stop,
+          progress, config, looks_up, t_start, extra_seconds, resumed) -> Outcome:
     stop_reason = "spp"
-    last_checkpoint = last_preview = time.perf_counter()
+    last_checkpoint = last_preview = t_loop = time.perf_counter()
+    passes_at_loop = film.passes
     sec_per_pass = None
+    step = getattr(renderer, "step_passes", None)  # the least a call can render: a pass, or to a unit's end
     while True:
         if film.passes >= budget.spp:
             stop_reason = "spp"
@@ -333,7 +349,9 @@ def _run_job(path_renderer, traced_renderer, seed, budget, pilot_spp, checkpoint
             break
         elapsed = time.perf_counter() - t_start
         left = budget.spp - film.passes
-        if budget.seconds is not None and sec_per_pass is not None and elapsed + sec_per_pass > budget.seconds:
+        least = 1 if step is None else step(film.next_pass)
+        if budget.seconds is not None and sec_per_pass is not None and \
+                elapsed + least * sec_per_pass > budget.seconds:
             stop_reason = "time"
             break
         n = left
@@ -350,10 +368,16 @@ def _run_job(path_renderer, traced_renderer, seed, budget, pilot_spp, checkpoint
                     slice_s = min(slice_s, budget.seconds - elapsed)
                 n = max(1, int(slice_s / sec_per_pass))
             n = min(n, left)
-        t0 = time.perf_counter()
+        align = getattr(renderer, "align_passes", None)  # the Ray farm's units: fixed by pass index
+        if align is not None:
+            fit = None
+            if budget.seconds is not None and sec_per_pass is not None:
+                fit = int((budget.seconds - elapsed) / sec_per_pass)
+            n = align(film.next_pass, n, left, fit)
         renderer.render_into(film, run_seed, film.next_pass, n, progress)
-        sec_per_pass = (time.perf_counter() - t0) / n
         now = time.perf_counter()
+        # over the whole loop, not the last call: the farm's calls return early when units rendered ahead are in
+        sec_per_pass = (now - t_loop) / max(film.passes - passes_at_loop, 1)
         unit_sums = None  # one host copy per unit, shared by whatever needs it
 
         def sums() -> PassSum:

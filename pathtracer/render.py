@@ -437,6 +437,7 @@ def render(
     preview=None,
     preview_every: float | None = None,
     stop=None,
+    executor=None,
 ) -> np.ndarray:
     """Render ``scene``; returns linear radiance, float32 (H, W, 3).
 
@@ -473,6 +474,9 @@ def render(
     (for example by SIGINT, ``jobs.handle_signals``) the render stops after its current unit of passes and
     returns the image so far. stats then also has stop_reason ("spp", "time", "target_error" or "interrupted")
     and resumed_passes.
+
+    ``executor``: a ``pathtracer.ray_executor.RayExecutor`` renders the passes on Ray workers instead of in this
+    process (the same image to float32 rounding; every budget, checkpoint and resume works the same; no callback).
     """
     from pathtracer import estimator  # (it imports render.py itself)
 
@@ -496,7 +500,10 @@ def render(
     auto = light_tracing is None or light_tracing == "auto"
     opts = dict(device=device, max_depth=max_depth, light_samples=light_samples, rr=rr, view=view, threads=threads,
                 sampler=sampler, light_sampling=light_sampling, triangles=triangles, replicates=replicates)
-    r = Renderer(scene, light_tracing=False if auto else bool(light_tracing), **opts)
+    if executor is not None and callback is not None:
+        raise RenderError("a per-pass callback is not available with an executor")
+    make = Renderer if executor is None else executor.renderer
+    r = make(scene, light_tracing=False if auto else bool(light_tracing), **opts)
     roulette_warning = roulette_variance_warning(scene, r.rr, r.max_depth)
     if roulette_warning:  # detected and reported before any time is spent, never silently averaged
         warnings.warn(f"{scene.source}: {roulette_warning}", RuntimeWarning, stacklevel=2)
@@ -516,12 +523,14 @@ def render(
             if may_trace and resume:  # compile the light tracer only if the checkpoint's render used it
                 may_trace = bool(jobs.checkpoint_config(checkpoint).get("light_tracing"))
             if may_trace:
-                traced = Renderer(scene, light_tracing=True, **opts)
+                traced = make(scene, light_tracing=True, **opts)
                 compile_seconds += traced.compile_seconds
             job_config = dict(config, view=view, seed=seed, width=scene.width, height=scene.height,
                               device="cpu" if r.device == "cpu" else "cuda")
             if checkpoint is not None:
                 job_config["scene_hash"] = jobs.scene_hash(scene)
+            if executor is not None:  # the farm's merge grouping (a resume elsewhere is right, not bit-identical)
+                job_config["unit_passes"] = r.unit_passes
             write_preview = None
             if preview is not None:
                 def write_preview(sums: PassSum):
@@ -569,4 +578,7 @@ def render(
                      relmse_estimate=result.relmse_estimate, discarded=result.discarded, config=config,
                      threads=r.threads, device=r.device, roulette_warning=roulette_warning,
                      stop_reason=stop_reason, resumed_passes=resumed)
+        if executor is not None:
+            stats["executor"] = {"kind": "ray", "workers": executor.workers, "unit_passes": r.unit_passes,
+                                 "units_retried": executor.units_retried}
     return result.mean
