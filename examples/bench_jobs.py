@@ -3,7 +3,9 @@
 - ``--time T``: the render time and the whole process's wall time against T (CLI, one process per run);
 - ``--target-error REL``: the relMSE actually reached, against the committed Mitsuba references (tests/data/refs,
   65536 spp at 64x48: their own noise is subtracted), divided by REL, over several seeds;
-- a resume after SIGINT: bit-identical to the render that never stopped.
+- a resume after SIGINT: bit-identical to the render that never stopped;
+- the Ray farm (``--ray``): throughput of one worker and of two against one process with one and two threads, and
+  the cost per unit (from a render cut into one-pass units against the default units).
 
     python examples/bench_jobs.py --json docs/bench_jobs.json
 """
@@ -89,12 +91,63 @@ def sigint_resume(tmp: Path) -> dict:
                                                                         read_image(tmp / "u.exr")))}
 
 
+def ray_farm(reps: int) -> dict:
+    """Median seconds of one render (cornell_box, 160x120, 1024 spp) in-process and on a local Ray farm."""
+    import logging
+
+    import pathtracer
+    import ray
+    from pathtracer.ray_executor import RayExecutor
+
+    s = pathtracer.load_file(str(ROOT / "scenes" / "cornell_box.xml"), width=160, height=120)
+    spp, pixels = 1024, 160 * 120
+    os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
+    ray.init(address="local", include_dashboard=False, _node_ip_address="127.0.0.1", logging_level=logging.ERROR,
+             log_to_driver=False)
+    runs: dict = {}
+
+    def timed(name, **kw):
+        times = []
+        for _ in range(reps):
+            st: dict = {}
+            pathtracer.render(s, spp=spp, seed=0, progress=False, stats=st, **kw)
+            times.append(st["render_seconds"])
+        runs[name] = {"median_seconds": float(np.median(times)), "seconds": times,
+                      "msamples_per_second": spp * pixels / float(np.median(times)) / 1e6}
+        print(f"  {name:28s} {runs[name]['median_seconds']:.2f} s ({runs[name]['msamples_per_second']:.2f} "
+              f"M samples/s)", flush=True)
+        return runs[name]["median_seconds"]
+
+    try:
+        timed("in-process, 1 thread", threads=1)
+        timed("in-process, 2 threads", threads=2)
+        units = {}
+        for workers in (1, 2):
+            with RayExecutor(None, workers=workers) as ex:
+                pathtracer.render(s, spp=16, progress=False, executor=ex)  # the workers compile (cached)
+                timed(f"ray, {workers} worker(s)", executor=ex)
+                units[workers] = -(-spp // max(8, (1 << 20) // pixels))
+        with RayExecutor(None, workers=1, unit_samples=pixels, unit_min_passes=1) as ex:
+            pathtracer.render(s, spp=16, progress=False, executor=ex)
+            t_small = timed("ray, 1 worker, 1-pass units", executor=ex)
+        per_unit = (t_small - runs["ray, 1 worker(s)"]["median_seconds"]) / (spp - units[1])
+    finally:
+        ray.shutdown()
+    return {"scene": "cornell_box 160x120", "spp": spp, "reps": reps, "runs": runs,
+            "two_workers_over_one": runs["ray, 1 worker(s)"]["median_seconds"] / runs["ray, 2 worker(s)"]["median_seconds"],
+            "ray_2_over_inprocess_2_threads": runs["ray, 2 worker(s)"]["median_seconds"]
+            / runs["in-process, 2 threads"]["median_seconds"],
+            "seconds_per_unit_overhead": per_unit,
+            "unit_film_bytes": pixels * 3 * 8 * 6}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenes", nargs="*", default=SCENES)
     ap.add_argument("--time", type=float, nargs="*", default=[3.0])
     ap.add_argument("--targets", type=float, nargs="*", default=[1e-2, 1e-3])
     ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--ray-reps", type=int, default=3, help="repetitions of each Ray farm run (0: skip)")
     ap.add_argument("--json")
     args = ap.parse_args()
     report = {"time": [], "target_error": [], "machine": os.uname().nodename, "cpus": os.cpu_count()}
@@ -116,6 +169,13 @@ def main() -> None:
                       flush=True)
         report["sigint_resume"] = sigint_resume(tmp)
         print("SIGINT then --resume:", report["sigint_resume"], flush=True)
+    if args.ray_reps:
+        print("Ray farm:", flush=True)
+        report["ray"] = ray_farm(args.ray_reps)
+        r = report["ray"]
+        print(f"  two workers / one: {r['two_workers_over_one']:.2f}x, two workers / two threads in-process: "
+              f"{r['ray_2_over_inprocess_2_threads']:.2f}, overhead per unit {r['seconds_per_unit_overhead'] * 1e3:.1f} ms",
+              flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps(report, indent=1))
 

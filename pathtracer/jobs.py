@@ -32,6 +32,7 @@ UNIT_SECONDS = 1.0  # a unit's target length when the job must look up between u
 FIRST_UNIT_SAMPLES = 1 << 14  # the first unit, before the time per pass is known
 MIN_TARGET_PASSES = 16  # a target error may stop the render only after this many passes (and 4 per replicate)
 MAX_PASSES = 2**32 - 1
+TARGET_STEP_FRACTION = 16  # near a target error, a unit adds at least 1/16 of the passes so far
 
 
 class CheckpointError(RenderError):
@@ -339,6 +340,7 @@ def _loop(renderer, film, run_seed, budget, checkpoint, checkpoint_every, previe
     last_checkpoint = last_preview = t_loop = time.perf_counter()
     passes_at_loop = film.passes
     sec_per_pass = None
+    estimate = None  # the last relmse_estimate, with a target error
     step = getattr(renderer, "step_passes", None)  # the least a call can render: a pass, or to a unit's end
     while True:
         if film.passes >= budget.spp:
@@ -367,6 +369,16 @@ def _loop(renderer, film, run_seed, budget, checkpoint, checkpoint_every, previe
                 if budget.seconds is not None:
                     slice_s = min(slice_s, budget.seconds - elapsed)
                 n = max(1, int(slice_s / sec_per_pass))
+            if budget.target_error is not None:
+                # relMSE falls as 1/passes: go about as far as the target needs, then look again (a unit of a
+                # second overshoots a small image's target by hundreds of passes); before the first estimate, up
+                # to the first passes it may be made at, or double the passes so far
+                if estimate is None:
+                    first_check = max(budget.min_passes, 4 * renderer.replicates)
+                    n = min(n, max(first_check - film.passes, film.passes, 1))
+                else:
+                    needed = int(np.ceil(film.passes * estimate / budget.target_error)) - film.passes
+                    n = min(n, max(needed, film.passes // TARGET_STEP_FRACTION, 1))
             n = min(n, left)
         align = getattr(renderer, "align_passes", None)  # the Ray farm's units: fixed by pass index
         if align is not None:
@@ -388,7 +400,8 @@ def _loop(renderer, film, run_seed, budget, checkpoint, checkpoint_every, previe
 
         done_target = False
         if budget.target_error is not None and film.passes >= max(budget.min_passes, 4 * renderer.replicates):
-            done_target = sums().relmse_estimate <= budget.target_error
+            estimate = sums().relmse_estimate
+            done_target = estimate <= budget.target_error
         if checkpoint is not None and now - last_checkpoint >= checkpoint_every:
             write_checkpoint(checkpoint, sums(), film.next_pass, config)
             last_checkpoint = time.perf_counter()
