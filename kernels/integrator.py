@@ -103,6 +103,7 @@ class Features:
     rough_conductors: bool = False
     rough_plastics: bool = False
     moments: bool = False  # Mitsuba's moment integrator: also sum each sample's squared XYZ (kernels/film.py)
+    adaptive: bool = False  # per-pixel pass limits (adaptive sampling, pathtracer/adaptive.py)
 
     @property
     def other_materials(self) -> bool:
@@ -267,6 +268,7 @@ def make_render_kernel(features: Features):
     GLASS = features.dielectrics
     TEXTURES = features.textures
     MOMENTS = features.moments
+    ADAPTIVE = features.adaptive
 
     trace, occluded, occluded_but_face = make_tracers(features)
     sample_bsdf, eval_nee = make_materials(features)
@@ -742,6 +744,7 @@ def make_render_kernel(features: Features):
         scene: SceneData,
         cam: CameraData,
         params: PassParams,
+        pass_limit: wp.array(dtype=wp.uint32),  # adaptive only (else one unused element): a pixel's passes end there
         # outputs
         accum: wp.array(dtype=wp.vec3d),
         accum_sq: wp.array(dtype=wp.vec3d),
@@ -767,7 +770,13 @@ def make_render_kernel(features: Features):
         bad = int(0)
         rays = wp.int64(0)
         npix = cam.width * cam.height
-        for k in range(params.pass_count):
+        count = params.pass_count
+        if wp.static(ADAPTIVE):  # a stopped pixel renders no more passes (its passes stay a prefix 0 .. limit - 1)
+            limit = pass_limit[pixel]
+            if limit <= params.pass_index:
+                return
+            count = int(wp.min(wp.uint32(count), limit - params.pass_index))
+        for k in range(count):
             # pass p belongs to replicate p mod R; with Sobol' it is point p div R of that replicate's own
             # scramble (seed hashed with the replicate), so the R replicates are independent randomised QMC
             # estimates whose spread is an unbiased error estimate (kernels/sobol.py: replicate_seed)

@@ -108,6 +108,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "spp is then unbounded)")
     p.add_argument("--target-error", type=float, metavar="REL",
                    help="stop once the image's estimated relMSE is at or below REL (after a minimum of passes)")
+    p.add_argument("--adaptive", nargs="?", type=float, const=True, default=None, metavar="THRESHOLD",
+                   help="adaptive sampling: a pixel stops once its estimated relMSE is at or below THRESHOLD "
+                   "(default: --target-error if given, else 1e-4), after 64 passes; the EXR gets its passes (spp)")
     p.add_argument("--checkpoint", metavar="PATH", help="save the render's sums here as it goes (atomically), to "
                    "--resume from after an interruption")
     p.add_argument("--checkpoint-every", type=float, metavar="SECONDS", default=30.0,
@@ -142,6 +145,8 @@ def validate(args: argparse.Namespace) -> dict[str, str]:
         raise UsageError(f"--seed must be in [0, 2**32), got {args.seed}")
     if args.device is not None and not _DEVICE_RE.match(args.device):
         raise UsageError(f"unknown device {args.device!r}; expected cpu, cuda or cuda:N")
+    if args.adaptive is not None and args.adaptive is not True and not args.adaptive > 0:
+        raise UsageError(f"--adaptive must be > 0, got {args.adaptive}")
     for name, value in (("--time", args.time_limit), ("--target-error", args.target_error),
                         ("--checkpoint-every", args.checkpoint_every), ("--preview-every", args.preview_every)):
         if value is not None and not value > 0:  # (also NaN)
@@ -209,6 +214,7 @@ def _render_kwargs(args: argparse.Namespace) -> dict:
         "time_limit": args.time_limit,
         "target_error": args.target_error,
         "checkpoint": args.checkpoint,
+        "adaptive": args.adaptive,
     }
     kwargs = {k: v for k, v in given.items() if v is not None}
     kwargs["view"] = args.view
@@ -224,7 +230,8 @@ def _render_kwargs(args: argparse.Namespace) -> dict:
 
 def _job(args: argparse.Namespace) -> bool:
     """Is this a render job (a budget other than spp, or a checkpoint)? Its EXR then gets error and count layers."""
-    return args.time_limit is not None or args.target_error is not None or args.checkpoint is not None
+    return (args.time_limit is not None or args.target_error is not None or args.checkpoint is not None
+            or args.adaptive is not None)
 
 
 def _accepts(func, name: str) -> bool:
@@ -327,7 +334,8 @@ def _run(args: argparse.Namespace, params: dict, stop, t_start: float | None) ->
             import numpy as np
 
             h, w = image.shape[:2]
-            layers["spp"] = np.full((h, w), float(stats["spp"]), dtype=np.float32)  # samples per pixel
+            if "spp" not in layers:  # (adaptive sampling gives each pixel's own)
+                layers["spp"] = np.full((h, w), float(stats["spp"]), dtype=np.float32)  # samples per pixel
         if not str(args.output).lower().endswith(".exr") and _job(args):
             layers.pop("stderr", None)
             layers.pop("spp", None)
@@ -364,9 +372,9 @@ def _run(args: argparse.Namespace, params: dict, stop, t_start: float | None) ->
         device += f" (Ray, {stats['executor']['workers']} workers)"
     summary = _summary(args.output, image, spp, device, seconds, compile_seconds, samples, discarded)
     reason = stats.get("stop_reason")
-    if reason in ("time", "target_error"):
-        summary += f" (stopped by {'--time' if reason == 'time' else '--target-error'}, estimated relMSE " \
-                   f"{stats.get('relmse_estimate', float('nan')):.3g})"
+    if reason in ("time", "target_error", "converged"):
+        by = {"time": "--time", "target_error": "--target-error", "converged": "--adaptive: every pixel converged"}
+        summary += f" (stopped by {by[reason]}, estimated relMSE {stats.get('relmse_estimate', float('nan')):.3g})"
     print(summary, flush=True)
     if reason == "interrupted":
         return _interrupted(stop, spp, args)

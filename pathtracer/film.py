@@ -41,6 +41,9 @@ class PassSum:
     rep_passes: np.ndarray | None = None  # (R,) int: passes per replicate
     estimator: str = "passes"
     m2_sum: np.ndarray | None = None  # (H, W, 3) float64: sum of squared per-sample XYZ (moment integrator only)
+    # (H, W) int64: passes each pixel has (adaptive sampling: a pixel's passes are 0 .. counts - 1); None: all have
+    # ``passes``
+    counts: np.ndarray | None = None
 
     def __add__(self, other: "PassSum") -> "PassSum":
         def add(a, b):
@@ -50,17 +53,30 @@ class PassSum:
             raise ValueError(f"cannot merge sums of different samplers ({self.estimator} and {other.estimator})")
         if self.rep_sum is not None and other.rep_sum is not None and len(self.rep_sum) != len(other.rep_sum):
             raise ValueError(f"cannot merge sums of {len(self.rep_sum)} and {len(other.rep_sum)} replicates")
+        counts = None
+        if self.counts is not None or other.counts is not None:
+            counts = self.pixel_counts() + other.pixel_counts()
         return PassSum(self.sum + other.sum, self.sum_sq + other.sum_sq, self.passes + other.passes,
                        self.discarded + other.discarded, self.seconds + other.seconds, self.rays + other.rays,
                        add(self.lt_sum, other.lt_sum), add(self.lt_sum_sq, other.lt_sum_sq),
                        add(self.rep_sum, other.rep_sum), add(self.rep_passes, other.rep_passes), self.estimator,
-                       add(self.m2_sum, other.m2_sum))
+                       add(self.m2_sum, other.m2_sum), counts)
+
+    def pixel_counts(self) -> np.ndarray:
+        """(H, W) int64: the passes of each pixel."""
+        if self.counts is not None:
+            return self.counts
+        return np.full(self.sum.shape[:2], self.passes, dtype=np.int64)
+
+    def _n(self):
+        """Passes per pixel, broadcastable against (H, W, 3): a number, or (H, W, 1) with per-pixel counts."""
+        return self.passes if self.counts is None else self.counts[..., None].astype(np.float64)
 
     @property
     def mean(self) -> np.ndarray:
         """Linear radiance, float32 (H, W, 3)."""
         total = self.sum if self.lt_sum is None else self.sum + self.lt_sum
-        return (total / max(self.passes, 1)).astype(np.float32)
+        return (total / np.maximum(self._n(), 1)).astype(np.float32)
 
     def layers(self, names: tuple[str, ...]) -> dict[str, np.ndarray]:
         """Mitsuba's moment layers, float32 (H, W, 3) each: ``names[0]`` the mean XYZ of the samples, ``names[1]``
@@ -72,13 +88,20 @@ class PassSum:
         return {names[0]: xyz.astype(np.float32), names[1]: (self.m2_sum / n).astype(np.float32)}
 
     @staticmethod
-    def _var_of_mean(total: np.ndarray, total_sq: np.ndarray, n: int) -> np.ndarray:
-        m = total / n
-        return np.maximum(total_sq / n - m * m, 0.0) * n / (n - 1) / n
+    def _var_of_mean(total: np.ndarray, total_sq: np.ndarray, n) -> np.ndarray:
+        """The sample variance of the mean of n samples (n: a number or per-pixel counts; inf where n < 2)."""
+        if np.isscalar(n):
+            m = total / n
+            return np.maximum(total_sq / n - m * m, 0.0) * n / (n - 1) / n
+        k = np.maximum(n, 2.0)
+        m = total / k
+        return np.where(n >= 2, np.maximum(total_sq / k - m * m, 0.0) / (k - 1), np.inf)
 
     def _replicate_var_of_mean(self) -> np.ndarray:
         """sum_r n_r (m_r - m)^2 / (R' - 1) / N over the R' non-empty replicates: the spread of the replicate
         means, each weighted by its pass count (exactly the variance of the mean of R equal replicates)."""
+        if self.counts is not None:
+            return self._replicate_var_of_mean_per_pixel()
         n = np.asarray(self.rep_passes, dtype=np.float64)
         used = n > 0
         if used.sum() < 2:
@@ -88,6 +111,20 @@ class PassSum:
         m = self.sum / self.passes
         dev = reps / n[:, None, None, None] - m
         return np.einsum("r,rhwc->hwc", n, dev * dev) / (len(n) - 1) / self.passes
+
+    def _replicate_var_of_mean_per_pixel(self) -> np.ndarray:
+        """As ``_replicate_var_of_mean`` with each pixel's own counts: its passes are 0 .. c - 1, so replicate r
+        has ceil((c - r) / R) of them."""
+        R = len(self.rep_sum)
+        c = self.counts.astype(np.int64)
+        n_r = np.maximum((c[None] - np.arange(R)[:, None, None] + R - 1) // R, 0).astype(np.float64)  # (R, H, W)
+        used = n_r > 0
+        r_used = used.sum(axis=0).astype(np.float64)  # (H, W)
+        m = self.sum / np.maximum(c, 1)[..., None]
+        dev = self.rep_sum / np.maximum(n_r, 1)[..., None] - m
+        ss = np.einsum("rhw,rhwc->hwc", n_r, dev * dev)
+        var = ss / np.maximum(r_used - 1, 1)[..., None] / np.maximum(c, 1)[..., None]
+        return np.where((r_used >= 2)[..., None], var, np.inf)
 
     @property
     def variance_of_mean(self) -> np.ndarray:
@@ -99,7 +136,7 @@ class PassSum:
         if self.estimator == "replicates":
             var = self._replicate_var_of_mean()
         else:
-            var = self._var_of_mean(self.sum, self.sum_sq, n)
+            var = self._var_of_mean(self.sum, self.sum_sq, self._n())
         if self.lt_sum is not None:  # the two estimators use independent random numbers: variances add
             var = var + self._var_of_mean(self.lt_sum, self.lt_sum_sq, n)
         return var
@@ -131,7 +168,7 @@ class Film:
     them into a ``PassSum``: passes done, the next pass, passes per replicate, discarded samples, seconds."""
 
     def __init__(self, width: int, height: int, replicates: int, moments: bool, light_tracing: bool, tiles: int,
-                 device: str, estimator: str):
+                 device: str, estimator: str, adaptive: bool = False):
         self.width, self.height, self.replicates = width, height, replicates
         self.estimator = estimator
         npix = width * height
@@ -141,6 +178,10 @@ class Film:
             self.accum_rep = wp.zeros(replicates * npix, dtype=wp.vec3d)
             self.accum_m2 = wp.zeros(npix if moments else 1, dtype=wp.vec3d)
             self.discarded = wp.zeros(tiles, dtype=wp.int32)  # one counter per tile
+            # adaptive sampling: the pass each pixel stops at (pathtracer/adaptive.py); else one unused element
+            self.limits = np.full((height, width), 2**32 - 1, dtype=np.uint32) if adaptive else None
+            self.pass_limit = wp.array(self.limits.reshape(-1), dtype=wp.uint32) if adaptive else \
+                wp.zeros(1, dtype=wp.uint32)
             self.rays = wp.zeros(tiles, dtype=wp.int64)
             self.lt = None
             if light_tracing:
@@ -173,11 +214,18 @@ class Film:
                        rep_passes=self.rep_passes.copy(), estimator=self.estimator)
         if self.moments:
             sums.m2_sum = self.accum_m2.numpy().reshape(shape).copy()
+        if self.limits is not None:
+            sums.counts = np.minimum(self.limits.astype(np.int64), self.next_pass)
         if self.lt is not None:
             sums.lt_sum = self.lt["sum"].numpy().reshape(shape).copy()
             sums.lt_sum_sq = self.lt["sum_sq"].numpy().reshape(shape).copy()
             sums.discarded += int(self.lt["discarded"].numpy()[0])
         return sums
+
+    def set_limits(self, limits: np.ndarray) -> None:
+        """New per-pixel pass limits (adaptive sampling), used from the next launch on."""
+        self.limits = np.ascontiguousarray(limits, dtype=np.uint32)
+        wp.copy(self.pass_limit, wp.array(self.limits.reshape(-1), dtype=wp.uint32, device=self.accum.device))
 
     def load(self, sums: PassSum, next_pass: int) -> None:
         """Continue from ``sums`` (a checkpoint's): their arrays become the accumulators, ``next_pass`` the pass
@@ -187,6 +235,8 @@ class Film:
             raise ValueError("the sums do not match this film")
         if (sums.m2_sum is not None) != self.moments or (sums.lt_sum is not None) != (self.lt is not None):
             raise ValueError("the sums do not match this film's layers")
+        if (sums.counts is not None) != (self.limits is not None):
+            raise ValueError("the sums are of an adaptive render and this one is not, or the other way round")
         device = self.accum.device
 
         def put(dst, a):
@@ -210,3 +260,7 @@ class Film:
         self.seconds = sums.seconds
         self.base_discarded = sums.discarded
         self.base_rays = sums.rays
+        if self.limits is not None:
+            from pathtracer.adaptive import limits_from_counts
+
+            self.set_limits(limits_from_counts(sums.counts, next_pass))

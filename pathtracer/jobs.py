@@ -140,7 +140,7 @@ def scene_hash(scene) -> str:
 
 # ---------------------------------------------------------------- checkpoints
 
-_ARRAYS = ("sum", "sum_sq", "rep_sum", "rep_passes", "m2_sum", "lt_sum", "lt_sum_sq")
+_ARRAYS = ("sum", "sum_sq", "rep_sum", "rep_passes", "m2_sum", "lt_sum", "lt_sum_sq", "counts")
 
 
 def _digest(arrays: dict) -> str:
@@ -198,7 +198,8 @@ def read_checkpoint(path: str | os.PathLike) -> tuple[PassSum, int, dict]:
             raise CheckpointError(f"{path}: checkpoint is corrupt (its sums do not match their checksum)")
         sums = PassSum(data["sum"], data["sum_sq"], int(meta["passes"]), int(meta["discarded"]),
                        float(meta["seconds"]), int(meta["rays"]), data.get("lt_sum"), data.get("lt_sum_sq"),
-                       data.get("rep_sum"), data.get("rep_passes"), str(meta["estimator"]), data.get("m2_sum"))
+                       data.get("rep_sum"), data.get("rep_passes"), str(meta["estimator"]), data.get("m2_sum"),
+                       data.get("counts"))
         return sums, int(meta["next_pass"]), dict(meta["config"])
     except CheckpointError:
         raise
@@ -259,26 +260,28 @@ def _pixels(scene) -> int:
 def run_job(path_renderer, traced_renderer, seed: int, budget: Budget, *, pilot_spp: int,
             checkpoint: str | None = None, checkpoint_every: float = 30.0, resume: bool = False,
             preview=None, preview_every: float | None = None, stop: StopFlag | None = None,
-            progress=False, base_config: dict | None = None) -> Outcome:
+            progress=False, base_config: dict | None = None, adaptive=None) -> Outcome:
     """Render until a bound of ``budget`` is reached or ``stop`` is set.
 
     ``traced_renderer``: the light-tracing candidate when the auto estimator may pick it (else None): the pilot
     (pathtracer/estimator.py, sized from ``pilot_spp``) decides, and its winner's passes continue. ``checkpoint``:
     written every ``checkpoint_every`` seconds and at the end; with ``resume`` the job continues from it (refused if
     it belongs to another scene or configuration). ``preview(sums)`` is called every ``preview_every`` seconds.
+    ``adaptive``: a ``pathtracer.adaptive.Adaptive`` stops pixels at its decision passes (the renderer must have
+    been made with ``adaptive=True``); when every pixel has stopped the render does too ("converged").
     """
     if stop is not None:
         stop.armed = True
     try:
         return _run_job(path_renderer, traced_renderer, seed, budget, pilot_spp, checkpoint, checkpoint_every,
-                        resume, preview, preview_every, stop, progress, base_config)
+                        resume, preview, preview_every, stop, progress, base_config, adaptive)
     finally:
         if stop is not None:
             stop.armed = False
 
 
 def _run_job(path_renderer, traced_renderer, seed, budget, pilot_spp, checkpoint, checkpoint_every, resume,
-             preview, preview_every, stop, progress, base_config) -> Outcome:
+             preview, preview_every, stop, progress, base_config, adaptive) -> Outcome:
     from pathtracer import estimator
 
     config = dict(base_config or {})
@@ -328,19 +331,20 @@ def _run_job(path_renderer, traced_renderer, seed, budget, pilot_spp, checkpoint
         film.horizon = budget.spp
     try:
         return _loop(renderer, film, run_seed, budget, checkpoint, checkpoint_every, preview, preview_every,
-                     stop, progress, config, looks_up, t_start, extra_seconds, resumed)
+                     stop, progress, config, looks_up, t_start, extra_seconds, resumed, adaptive)
     finally:
         if hasattr(film, "close"):
             film.close()
 
 
 def _loop(renderer, film, run_seed, budget, checkpoint, checkpoint_every, preview, preview_every, stop,
-          progress, config, looks_up, t_start, extra_seconds, resumed) -> Outcome:
+          progress, config, looks_up, t_start, extra_seconds, resumed, adaptive) -> Outcome:
     stop_reason = "spp"
     last_checkpoint = last_preview = t_loop = time.perf_counter()
     passes_at_loop = film.passes
     sec_per_pass = None
     estimate = None  # the last relmse_estimate, with a target error
+    decided = None  # the pass of the last adaptive decision
     step = getattr(renderer, "step_passes", None)  # the least a call can render: a pass, or to a unit's end
     while True:
         if film.passes >= budget.spp:
@@ -349,6 +353,15 @@ def _loop(renderer, film, run_seed, budget, checkpoint, checkpoint_every, previe
         if stop is not None and stop.is_set():
             stop_reason = "interrupted"
             break
+        if adaptive is not None:
+            # decided before the pass is rendered, from the sums up to it: a resume at this pass decides again,
+            # from the same sums, the same way
+            if adaptive.is_decision(film.next_pass) and decided != film.next_pass:
+                film.set_limits(adaptive.decide(film.sums(), film.limits, film.next_pass))
+                decided = film.next_pass
+            if int(film.limits.max()) <= film.next_pass:
+                stop_reason = "converged"  # every pixel has stopped
+                break
         elapsed = time.perf_counter() - t_start
         left = budget.spp - film.passes
         least = 1 if step is None else step(film.next_pass)
@@ -380,6 +393,8 @@ def _loop(renderer, film, run_seed, budget, checkpoint, checkpoint_every, previe
                     needed = int(np.ceil(film.passes * estimate / budget.target_error)) - film.passes
                     n = min(n, max(needed, film.passes // TARGET_STEP_FRACTION, 1))
             n = min(n, left)
+        if adaptive is not None:  # a call ends where the next decision is made
+            n = min(n, adaptive.next_decision(film.next_pass) - film.next_pass)
         align = getattr(renderer, "align_passes", None)  # the Ray farm's units: fixed by pass index
         if align is not None:
             fit = None

@@ -95,6 +95,8 @@ class Renderer:
     more where it sees only a sliver of them (a narrow view): light paths rarely land there.
     triangles: "wide" (default: our watertight 4-wide box tree, kernels/triangle.py) or "warp" (Warp's wp.Mesh and
     mesh_query_ray, kernels/triangle_warp.py: rays aimed exactly at a vertex can slip through it).
+    adaptive: compile per-pixel pass limits in (``Film.set_limits``; pathtracer/adaptive.py decides them); not with
+    light tracing or the moment integrator.
     """
 
     scene: Scene
@@ -110,6 +112,7 @@ class Renderer:
     light_tracing: bool | None = None
     triangles: str | None = None
     replicates: int | None = None
+    adaptive: bool = False
     compile_seconds: float = field(init=False, default=0.0)
 
     def __post_init__(self):
@@ -153,15 +156,22 @@ class Renderer:
                                              self.light_sampling, self.triangles)
         # the light tracer starts on parallelogram lights only and splats each light path into the one pixel it
         # lands in (a box filter's film) through a pinhole; it knows diffuse surfaces and mirrors only
+        self.adaptive = bool(self.adaptive)
+        if self.adaptive and self.features.moments:
+            raise RenderError("adaptive sampling is not available with the moment integrator (its layers are "
+                              "per-pass means)")
         possible = (not (self.features.pixel_filter or self.features.thin_lens or self.features.other_materials
-                         or self.features.textures or self.features.moments)
+                         or self.features.textures or self.features.moments or self.adaptive)
                     and self.scene.only_rect_lights
                     and self.features.mirrors and self.features.lights and self.view == "radiance"
                     and (self.max_depth < 0 or self.max_depth >= 3))
+        if self.adaptive and self.light_tracing:
+            raise RenderError("adaptive sampling is not available with light tracing (its paths land anywhere "
+                              "on the film)")
         wanted = DEFAULT_LIGHT_TRACING if self.light_tracing is None else bool(self.light_tracing)
         self.light_tracing_possible = possible
         self.light_tracing = wanted and possible
-        self.features = dataclasses.replace(self.features, light_tracing=self.light_tracing)
+        self.features = dataclasses.replace(self.features, light_tracing=self.light_tracing, adaptive=self.adaptive)
         # refused before anything is compiled or allocated: a film the machine cannot hold, or Warp cannot index
         check_film_size(self.scene.width, self.scene.height, self.replicates, self.features.moments,
                         self.light_tracing, self.device)
@@ -180,7 +190,7 @@ class Renderer:
         """Empty accumulators for this renderer's passes (``render_passes(film=...)`` adds to them)."""
         s = self.scene
         return Film(s.width, s.height, self.replicates, self.features.moments, self.light_kernel is not None,
-                    self._tiles(), self.device, "replicates" if self.sampler == "sobol" else "passes")
+                    self._tiles(), self.device, "replicates" if self.sampler == "sobol" else "passes", self.adaptive)
 
     def render_passes(
         self,
@@ -240,7 +250,7 @@ class Renderer:
 
         # one recorded launch per tile: later launches only swap the pass parameters (cheaper than wp.launch)
         cmds = [wp.launch(self.kernel, dim=rows_of[t] * s.width,
-                          inputs=[self.dscene.data, self.dscene.camera, params(t, first_pass)],
+                          inputs=[self.dscene.data, self.dscene.camera, params(t, first_pass), film.pass_limit],
                           outputs=[film.accum, film.accum_sq, film.accum_rep, film.accum_m2, film.discarded,
                                    film.rays], device=self.device, record_cmd=True)
                 for t in range(tiles)]
@@ -438,6 +448,7 @@ def render(
     preview_every: float | None = None,
     stop=None,
     executor=None,
+    adaptive: bool | float = False,
 ) -> np.ndarray:
     """Render ``scene``; returns linear radiance, float32 (H, W, 3).
 
@@ -477,6 +488,12 @@ def render(
 
     ``executor``: a ``pathtracer.ray_executor.RayExecutor`` renders the passes on Ray workers instead of in this
     process (the same image to float32 rounding; every budget, checkpoint and resume works the same; no callback).
+
+    ``adaptive``: True, or a threshold (a pixel's estimated relMSE; default ``target_error`` if given, else 1e-4):
+    pixels stop once their error is at or below it (pathtracer/adaptive.py: after 64 passes, decided every 32);
+    the render ends at the first bound or when every pixel has stopped (stop_reason "converged"). layers then
+    get "spp" (passes per pixel) and "stderr"; stats get "adaptive". Not with light tracing (auto leaves it off),
+    the moment integrator, a callback or an executor.
     """
     from pathtracer import estimator  # (it imports render.py itself)
 
@@ -502,6 +519,15 @@ def render(
                 sampler=sampler, light_sampling=light_sampling, triangles=triangles, replicates=replicates)
     if executor is not None and callback is not None:
         raise RenderError("a per-pass callback is not available with an executor")
+    plan = None
+    if adaptive is not False and adaptive is not None:
+        from pathtracer.adaptive import DEFAULT_THRESHOLD, Adaptive
+
+        if callback is not None or executor is not None:
+            raise RenderError("adaptive sampling is not available with a per-pass callback or an executor")
+        threshold = adaptive if not isinstance(adaptive, bool) else (target_error or DEFAULT_THRESHOLD)
+        plan = Adaptive(threshold)
+        opts["adaptive"] = True
     make = Renderer if executor is None else executor.renderer
     r = make(scene, light_tracing=False if auto else bool(light_tracing), **opts)
     roulette_warning = roulette_variance_warning(scene, r.rr, r.max_depth)
@@ -531,6 +557,8 @@ def render(
                 job_config["scene_hash"] = jobs.scene_hash(scene)
             if executor is not None:  # the farm's merge grouping (a resume elsewhere is right, not bit-identical)
                 job_config["unit_passes"] = r.unit_passes
+            if plan is not None:
+                job_config["adaptive"] = plan.config()
             write_preview = None
             if preview is not None:
                 def write_preview(sums: PassSum):
@@ -551,7 +579,8 @@ def render(
                                        pilot_spp=pilot_spp, checkpoint=None if checkpoint is None else
                                        os.fspath(checkpoint), checkpoint_every=checkpoint_every, resume=resume,
                                        preview=write_preview, preview_every=preview_every, stop=stop,
-                                       progress=bar if bar is not None else False, base_config=job_config)
+                                       progress=bar if bar is not None else False, base_config=job_config,
+                                       adaptive=plan)
             finally:
                 if bar is not None:
                     bar.close()
@@ -564,20 +593,28 @@ def render(
         r.close()
     if layers is not None:
         layers.update(result.layers(scene.integrator.layer_names))
-        if budgeted or checkpoint is not None:
+        if budgeted or checkpoint is not None or plan is not None:
             layers["stderr"] = np.sqrt(result.variance_of_mean).astype(np.float32)
+        if plan is not None:
+            layers["spp"] = result.pixel_counts().astype(np.float32)
     if result.discarded:
         warnings.warn(f"{scene.source}: {result.discarded} non-finite samples were discarded", RuntimeWarning,
                       stacklevel=2)
     if stats is not None:
         pixels = scene.width * scene.height
         seconds = result.seconds + extra_seconds  # (with a resumed render: the earlier sessions' too)
+        samples = result.passes * pixels if result.counts is None else int(result.counts.sum())
         stats.update(spp=result.passes, render_seconds=seconds, seconds=seconds, compile_seconds=compile_seconds,
                      wall_seconds=time.perf_counter() - t_wall,
-                     samples=result.passes * pixels, samples_per_second=result.passes * pixels / max(seconds, 1e-12),
+                     samples=samples, samples_per_second=samples / max(seconds, 1e-12),
                      relmse_estimate=result.relmse_estimate, discarded=result.discarded, config=config,
                      threads=r.threads, device=r.device, roulette_warning=roulette_warning,
                      stop_reason=stop_reason, resumed_passes=resumed)
+        if plan is not None:
+            counts = result.pixel_counts()
+            stats["adaptive"] = dict(plan.config(), mean_spp=float(counts.mean()), min_spp=int(counts.min()),
+                                     max_spp=int(counts.max()),
+                                     stopped_fraction=float(np.mean(counts < result.passes)))
         if executor is not None:
             stats["executor"] = {"kind": "ray", "workers": executor.workers, "unit_passes": r.unit_passes,
                                  "units_retried": executor.units_retried}
