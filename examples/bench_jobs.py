@@ -4,6 +4,8 @@
 - ``--target-error REL``: the relMSE actually reached, against the committed Mitsuba references (tests/data/refs,
   65536 spp at 64x48: their own noise is subtracted), divided by REL, over several seeds;
 - a resume after SIGINT: bit-identical to the render that never stopped;
+- adaptive sampling against uniform sampling at equal time (the relMSE each reaches in T seconds, measured against
+  the Mitsuba references), with the adaptive threshold at the uniform render's estimated relMSE and at 1/4 of it;
 - the Ray farm (``--ray``): throughput of one worker and of two against one process with one and two threads, and
   the cost per unit (from a render cut into one-pass units against the default units).
 
@@ -91,6 +93,35 @@ def sigint_resume(tmp: Path) -> dict:
                                                                         read_image(tmp / "u.exr")))}
 
 
+def adaptive_vs_uniform(scene: str, seconds: float, seeds: range) -> dict:
+    import pathtracer
+    from pathtracer.imageio import read_image
+
+    refs = ROOT / "tests" / "data" / "refs"
+    ref, var = read_image(refs / f"{scene}.exr"), read_image(refs / f"{scene}_var.exr")
+    s = pathtracer.load_file(str(ROOT / "scenes" / f"{scene}.xml"), width=ref.shape[1], height=ref.shape[0])
+    rows = []
+    for seed in seeds:
+        st: dict = {}
+        img = pathtracer.render(s, time_limit=seconds, seed=seed, progress=False, stats=st)
+        row = {"seed": seed, "uniform": {"relmse": measured_relmse(img, ref, var), "spp": st["spp"],
+                                         "estimate": st["relmse_estimate"]}}
+        for name, threshold in (("adaptive_at_estimate", st["relmse_estimate"]),
+                                ("adaptive_at_quarter", st["relmse_estimate"] / 4)):
+            sa: dict = {}
+            img = pathtracer.render(s, time_limit=seconds, seed=seed, progress=False, stats=sa, adaptive=threshold)
+            row[name] = {"relmse": measured_relmse(img, ref, var), "threshold": threshold, "spp": sa["spp"],
+                         "mean_spp": sa["adaptive"]["mean_spp"], "stop_reason": sa["stop_reason"],
+                         "render_seconds": sa["render_seconds"], "estimate": sa["relmse_estimate"]}
+        rows.append(row)
+    out = {"seconds": seconds, "runs": rows}
+    for name in ("adaptive_at_estimate", "adaptive_at_quarter"):
+        # > 1: adaptive reaches a lower error in the same time (efficiency ratio at equal time)
+        out[f"uniform_over_{name}"] = float(np.exp(np.mean([np.log(r["uniform"]["relmse"] / r[name]["relmse"])
+                                                            for r in rows])))
+    return out
+
+
 def ray_farm(reps: int) -> dict:
     """Median seconds of one render (cornell_box, 160x120, 1024 spp) in-process and on a local Ray farm."""
     import logging
@@ -147,6 +178,8 @@ def main() -> None:
     ap.add_argument("--time", type=float, nargs="*", default=[3.0])
     ap.add_argument("--targets", type=float, nargs="*", default=[1e-2, 1e-3])
     ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--adaptive-seconds", type=float, default=1.0, help="time per render of the adaptive "
+                    "comparison (0: skip)")
     ap.add_argument("--ray-reps", type=int, default=3, help="repetitions of each Ray farm run (0: skip)")
     ap.add_argument("--json")
     args = ap.parse_args()
@@ -167,6 +200,14 @@ def main() -> None:
                       f"{['%.2f' % r for r in row['measured_over_target']]}, geomean "
                       f"{row['geomean_measured_over_target']:.2f}, spp {[r['spp'] for r in row['runs']]}",
                       flush=True)
+        if args.adaptive_seconds:
+            report["adaptive"] = []
+            for scene in args.scenes:
+                row = dict(scene=scene, **adaptive_vs_uniform(scene, args.adaptive_seconds, range(args.seeds)))
+                report["adaptive"].append(row)
+                print(f"{scene:20s} adaptive vs uniform in {args.adaptive_seconds:g} s: uniform relMSE / adaptive "
+                      f"relMSE {row['uniform_over_adaptive_at_estimate']:.2f} (threshold = uniform's estimate), "
+                      f"{row['uniform_over_adaptive_at_quarter']:.2f} (a quarter of it)", flush=True)
         report["sigint_resume"] = sigint_resume(tmp)
         print("SIGINT then --resume:", report["sigint_resume"], flush=True)
     if args.ray_reps:
