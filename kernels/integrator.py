@@ -104,6 +104,7 @@ class Features:
     rough_plastics: bool = False
     moments: bool = False  # Mitsuba's moment integrator: also sum each sample's squared XYZ (kernels/film.py)
     adaptive: bool = False  # per-pixel pass limits (adaptive sampling, pathtracer/adaptive.py)
+    gradient: bool = False  # forward-mode derivatives of each path's radiance (pathtracer/gradients.py)
 
     @property
     def other_materials(self) -> bool:
@@ -116,6 +117,7 @@ class Features:
 class PathSample:
     L: wp.vec3  # radiance along one camera path
     rays: wp.int64  # rays it traced (counted only in the instrumented variant)
+    dL: wp.vec3  # gradient variants: dL/dtheta, the tangent 1 in each of theta's three channels
 
 
 @wp.func
@@ -269,6 +271,7 @@ def make_render_kernel(features: Features):
     TEXTURES = features.textures
     MOMENTS = features.moments
     ADAPTIVE = features.adaptive
+    GRAD = features.gradient
 
     trace, occluded, occluded_but_face = make_tracers(features)
     sample_bsdf, eval_nee = make_materials(features)
@@ -516,6 +519,11 @@ def make_render_kernel(features: Features):
         prev_p = wp.vec3(0.0)
         prev_ns = wp.vec3(0.0)  # the shading normal there (the environment's light samples are cosine-weighted)
         eta_scale = float(1.0)  # product of the relative indices crossed (for roulette, as Mitsuba)
+        # forward-mode derivatives (gradient variants): dL/dtheta and d beta/dtheta. Sampling is detached (the
+        # directions, light samples and roulette's probability do not move with theta), so each path's value is a
+        # polynomial in the reflectances and linear in the radiances, and these are its exact derivatives
+        dL = wp.vec3(0.0)
+        dbeta = wp.vec3(0.0)
 
         if wp.static(VIEW == VIEW_DIRECTION):
             L = 0.5 * d + wp.vec3(0.5)
@@ -537,6 +545,8 @@ def make_render_kernel(features: Features):
                                     L += wp.cw_mul(beta, scene.env_radiance)
                             else:
                                 L += wp.cw_mul(beta, scene.env_radiance)
+                            if wp.static(GRAD):  # (gradient variants are made without MIS)
+                                dL += wp.cw_mul(dbeta, scene.env_radiance)
                     if wp.static(ENVMAP):
                         if count_emission and (depth > 0 or params.hide_emitters == 0):
                             Le = env_eval(scene, d)
@@ -545,6 +555,8 @@ def make_render_kernel(features: Features):
                                     p_env = float(params.light_samples) * env_pdf(scene, d)
                                     Le = Le * (mis_pdf * mis_pdf / (mis_pdf * mis_pdf + p_env * p_env))
                             L += wp.cw_mul(beta, Le)
+                            if wp.static(GRAD):
+                                dL += wp.cw_mul(dbeta, Le)
                     break  # without an environment the sky is black
 
                 if wp.static(VIEW == VIEW_NORMAL):
@@ -567,6 +579,10 @@ def make_render_kernel(features: Features):
                                     L += wp.cw_mul(beta, scene.light_radiance[hit.light])
                             else:
                                 L += wp.cw_mul(beta, scene.light_radiance[hit.light])
+                            if wp.static(GRAD):  # d(beta Le) = dbeta Le + beta dLe
+                                dL += wp.cw_mul(dbeta, scene.light_radiance[hit.light])
+                                if hit.light == params.grad_light:
+                                    dL += beta
 
                 if params.max_depth >= 0 and depth + 1 >= params.max_depth:
                     break
@@ -621,6 +637,7 @@ def make_render_kernel(features: Features):
                 else:
                     # ---------------- diffuse: next-event estimation ----------------
                     Ld = wp.vec3(0.0)
+                    dLd = wp.vec3(0.0)  # dLd/dtheta (gradient variants: the differentiated light's share)
                     if wp.static(HAS_LIGHTS):
                         for l in range(scene.num_lights):
                             ln = scene.light_normal[l]
@@ -669,6 +686,9 @@ def make_render_kernel(features: Features):
                             if wp.static(not BSDF_NEE):
                                 Ll = wp.vec3(Ll_cos)
                             Ld += wp.cw_mul(scene.light_radiance[l], Ll / float(params.light_samples))
+                            if wp.static(GRAD):
+                                if l == params.grad_light:
+                                    dLd = Ll / float(params.light_samples)
                     if wp.static(OTHER_LIGHTS):
                         Ld += other_lights(scene, params, hit, ng, ns, mat, kind, albedo, d, key, dim, depth)
                         # the dims other_lights drew: K per sphere light, mesh light and environment
@@ -679,6 +699,11 @@ def make_render_kernel(features: Features):
                             L += wp.cw_mul(beta, Ld)
                         else:
                             L += wp.cw_mul(wp.cw_mul(beta, albedo), Ld) * (1.0 / wp.pi)
+                        if wp.static(GRAD):  # (gradient variants are made without BSDF_NEE)
+                            d_albedo = wp.cw_mul(dbeta, albedo)
+                            if mat == params.grad_material:
+                                d_albedo += beta
+                            dL += (wp.cw_mul(d_albedo, Ld) + wp.cw_mul(wp.cw_mul(beta, albedo), dLd)) * (1.0 / wp.pi)
 
                     # ---------------- bounce: cosine-weighted (diffuse), or the BSDF's own sampling ----------
                     u = wp.static(draw4)(key, dim, depth)
@@ -704,6 +729,10 @@ def make_render_kernel(features: Features):
                         break  # refracted or passed through, yet not to the other side of the surface
                 elif wp.dot(wi, ng) <= 0.0:
                     break  # the new direction would go through the surface
+                if wp.static(GRAD):  # d(beta w) = dbeta w + beta dw; w is the reflectance on diffuse and mirrors
+                    dbeta = wp.cw_mul(dbeta, weight)
+                    if mat == params.grad_material:
+                        dbeta += beta
                 beta = wp.cw_mul(beta, weight)
                 depth += 1
 
@@ -715,6 +744,8 @@ def make_render_kernel(features: Features):
                         if u[0] < SEED_RR_LAMBDA:
                             break
                         beta = beta / (1.0 - SEED_RR_LAMBDA)
+                        if wp.static(GRAD):
+                            dbeta = dbeta / (1.0 - SEED_RR_LAMBDA)
                 if wp.static(RR == RR_THROUGHPUT):
                     if depth >= params.rr_depth:
                         q_rr = wp.min(wp.max(beta[0], wp.max(beta[1], beta[2])) * eta_scale * eta_scale, 0.95)
@@ -723,6 +754,8 @@ def make_render_kernel(features: Features):
                         if u[0] >= q_rr:
                             break
                         beta = beta / q_rr
+                        if wp.static(GRAD):  # the survival probability is detached, as in Mitsuba's prb
+                            dbeta = dbeta / q_rr
                 if wp.max(beta[0], wp.max(beta[1], beta[2])) <= 0.0:
                     break
 
@@ -737,6 +770,8 @@ def make_render_kernel(features: Features):
         out = PathSample()
         out.L = L
         out.rays = rays
+        if wp.static(GRAD):
+            out.dL = dL
         return out
 
     @wp.kernel(enable_backward=False, module="unique")
@@ -752,6 +787,7 @@ def make_render_kernel(features: Features):
         accum_m2: wp.array(dtype=wp.vec3d),  # with moments only (else one unused element)
         discarded: wp.array(dtype=wp.int32),
         ray_count: wp.array(dtype=wp.int64),
+        accum_grad: wp.array(dtype=wp.vec3d),  # gradient variants only (else one unused element): sum of dL
     ):
         tid = wp.tid()
         col = tid % cam.width
@@ -767,6 +803,9 @@ def make_render_kernel(features: Features):
         total_m2 = wp.vec3d()
         if wp.static(MOMENTS):
             total_m2 = accum_m2[pixel]
+        total_grad = wp.vec3d()
+        if wp.static(GRAD):
+            total_grad = accum_grad[pixel]
         bad = int(0)
         rays = wp.int64(0)
         npix = cam.width * cam.height
@@ -788,7 +827,10 @@ def make_render_kernel(features: Features):
                 sample_index = p / wp.uint32(params.replicates)
                 seed = replicate_seed(params.seed, rep)
             sample = Li(scene, cam, params, col, row, sample_index, seed)
-            if wp.isfinite(sample.L):
+            finite = wp.isfinite(sample.L)
+            if wp.static(GRAD):
+                finite = finite and wp.isfinite(sample.dL)
+            if finite:
                 L64 = wp.vec3d(sample.L)
                 total = total + L64
                 total_sq = total_sq + wp.cw_mul(L64, L64)
@@ -797,6 +839,8 @@ def make_render_kernel(features: Features):
                 if wp.static(MOMENTS):
                     xyz = srgb_to_xyz(L64)
                     total_m2 = total_m2 + wp.cw_mul(xyz, xyz)
+                if wp.static(GRAD):
+                    total_grad = total_grad + wp.vec3d(sample.dL)
             else:
                 bad += 1  # dropped and counted, never averaged into the image
             rays += sample.rays
@@ -804,6 +848,8 @@ def make_render_kernel(features: Features):
         accum_sq[pixel] = total_sq
         if wp.static(MOMENTS):
             accum_m2[pixel] = total_m2
+        if wp.static(GRAD):
+            accum_grad[pixel] = total_grad
         # one counter per tile: Warp's CPU atomics are plain adds, and a tile is never rendered by two workers at once
         if bad > 0:
             wp.atomic_add(discarded, params.row_offset, bad)

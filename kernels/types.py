@@ -136,6 +136,8 @@ class PassParams:
     light_samples: int
     hide_emitters: int
     replicates: int  # R: pass p is a sample of replicate p mod R (its own Sobol' scramble)
+    grad_material: int  # gradient variants: the material whose reflectance is differentiated (-1: none)
+    grad_light: int  # ... the parallelogram light whose radiance is (-1: none)
 
 
 @wp.struct

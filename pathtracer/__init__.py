@@ -7,6 +7,7 @@
 """
 
 from pathtracer.errors import ImageIOError, PathtracerError, RenderError, SceneError
+from pathtracer.gradients import render_backward, render_forward, traverse
 from pathtracer.imageio import read_image, read_layers, write_image
 from pathtracer.loader import load_dict, load_file
 from pathtracer.render import PassSum, Renderer, render
@@ -17,6 +18,6 @@ __version__ = "0.1.0"
 __all__ = [
     "Camera", "ImageIOError", "Integrator", "Material", "PassSum", "PathtracerError", "RectLight",
     "RenderError", "Renderer", "Scene", "SceneError", "Sphere", "TriangleMesh", "load_dict", "load_file",
-    "read_image", "read_layers", "render", "write_image",
+    "read_image", "read_layers", "render", "render_backward", "render_forward", "traverse", "write_image",
 ]
 

@@ -44,6 +44,7 @@ class PassSum:
     # (H, W) int64: passes each pixel has (adaptive sampling: a pixel's passes are 0 .. counts - 1); None: all have
     # ``passes``
     counts: np.ndarray | None = None
+    grad_sum: np.ndarray | None = None  # (H, W, 3) float64: sum of each sample's dL/dtheta (gradient renders)
 
     def __add__(self, other: "PassSum") -> "PassSum":
         def add(a, b):
@@ -60,7 +61,7 @@ class PassSum:
                        self.discarded + other.discarded, self.seconds + other.seconds, self.rays + other.rays,
                        add(self.lt_sum, other.lt_sum), add(self.lt_sum_sq, other.lt_sum_sq),
                        add(self.rep_sum, other.rep_sum), add(self.rep_passes, other.rep_passes), self.estimator,
-                       add(self.m2_sum, other.m2_sum), counts)
+                       add(self.m2_sum, other.m2_sum), counts, add(self.grad_sum, other.grad_sum))
 
     def pixel_counts(self) -> np.ndarray:
         """(H, W) int64: the passes of each pixel."""
@@ -168,7 +169,7 @@ class Film:
     them into a ``PassSum``: passes done, the next pass, passes per replicate, discarded samples, seconds."""
 
     def __init__(self, width: int, height: int, replicates: int, moments: bool, light_tracing: bool, tiles: int,
-                 device: str, estimator: str, adaptive: bool = False):
+                 device: str, estimator: str, adaptive: bool = False, gradient: bool = False):
         self.width, self.height, self.replicates = width, height, replicates
         self.estimator = estimator
         npix = width * height
@@ -177,6 +178,7 @@ class Film:
             self.accum_sq = wp.zeros(npix, dtype=wp.vec3d)
             self.accum_rep = wp.zeros(replicates * npix, dtype=wp.vec3d)
             self.accum_m2 = wp.zeros(npix if moments else 1, dtype=wp.vec3d)
+            self.accum_grad = wp.zeros(npix if gradient else 1, dtype=wp.vec3d)
             self.discarded = wp.zeros(tiles, dtype=wp.int32)  # one counter per tile
             # adaptive sampling: the pass each pixel stops at (pathtracer/adaptive.py); else one unused element
             self.limits = np.full((height, width), 2**32 - 1, dtype=np.uint32) if adaptive else None
@@ -188,6 +190,7 @@ class Film:
                 self.lt = {k: wp.zeros(npix, dtype=wp.vec3d) for k in ("splat", "sum", "sum_sq")}
                 self.lt["discarded"] = wp.zeros(1, dtype=wp.int32)
         self.moments = moments
+        self.gradient = gradient
         self.passes = 0
         self.next_pass = 0
         self.rep_passes = np.zeros(replicates, dtype=np.int64)
@@ -214,6 +217,8 @@ class Film:
                        rep_passes=self.rep_passes.copy(), estimator=self.estimator)
         if self.moments:
             sums.m2_sum = self.accum_m2.numpy().reshape(shape).copy()
+        if self.gradient:
+            sums.grad_sum = self.accum_grad.numpy().reshape(shape).copy()
         if self.limits is not None:
             sums.counts = np.minimum(self.limits.astype(np.int64), self.next_pass)
         if self.lt is not None:

@@ -870,6 +870,8 @@ class _Builder:
                     self.fail(w("distribution"), f'unknown distribution "{dist}" (supported: beckmann, ggx)')
                 alpha = self.roughness(node, path, props)
                 mat = Material("roughconductor", rgb, eta=eta, k=k, alpha=alpha, distribution=dist, texture=tex)
+        if isinstance(node.get("id"), str) and node["id"]:  # its parameters' names (pathtracer/gradients.py)
+            mat = dataclasses.replace(mat, name=node["id"])
         self.visiting.discard(key)
         self.materials[key] = mat
         return mat

@@ -97,6 +97,9 @@ class Renderer:
     mesh_query_ray, kernels/triangle_warp.py: rays aimed exactly at a vertex can slip through it).
     adaptive: compile per-pixel pass limits in (``Film.set_limits``; pathtracer/adaptive.py decides them); not with
     light tracing or the moment integrator.
+    gradient: compile forward-mode derivatives in: the film's ``grad_sum`` gets dL/dtheta of every path, theta being
+    the reflectance of material ``grad_material`` or the radiance of parallelogram light ``grad_light`` (set them
+    before rendering; pathtracer/gradients.py). Diffuse and mirror materials only; no light tracing.
     """
 
     scene: Scene
@@ -113,7 +116,10 @@ class Renderer:
     triangles: str | None = None
     replicates: int | None = None
     adaptive: bool = False
+    gradient: bool = False
     compile_seconds: float = field(init=False, default=0.0)
+    grad_material: int = field(init=False, default=-1)  # gradient renderers: what render_into differentiates
+    grad_light: int = field(init=False, default=-1)
 
     def __post_init__(self):
         self.device = resolve_device(self.device)
@@ -157,11 +163,19 @@ class Renderer:
         # the light tracer starts on parallelogram lights only and splats each light path into the one pixel it
         # lands in (a box filter's film) through a pinhole; it knows diffuse surfaces and mirrors only
         self.adaptive = bool(self.adaptive)
+        self.gradient = bool(self.gradient)
+        if self.gradient:
+            f = self.features
+            if f.plastics or f.rough_conductors or f.rough_plastics or f.moments or f.textures:
+                raise RenderError("gradients are available on scenes of diffuse, mirror, glass and smooth conductor "
+                                  "materials without textures, and the path integrator (this scene has others)")
+            if self.light_tracing:
+                raise RenderError("gradients are not available with light tracing")
         if self.adaptive and self.features.moments:
             raise RenderError("adaptive sampling is not available with the moment integrator (its layers are "
                               "per-pass means)")
         possible = (not (self.features.pixel_filter or self.features.thin_lens or self.features.other_materials
-                         or self.features.textures or self.features.moments or self.adaptive)
+                         or self.features.textures or self.features.moments or self.adaptive or self.gradient)
                     and self.scene.only_rect_lights
                     and self.features.mirrors and self.features.lights and self.view == "radiance"
                     and (self.max_depth < 0 or self.max_depth >= 3))
@@ -171,7 +185,8 @@ class Renderer:
         wanted = DEFAULT_LIGHT_TRACING if self.light_tracing is None else bool(self.light_tracing)
         self.light_tracing_possible = possible
         self.light_tracing = wanted and possible
-        self.features = dataclasses.replace(self.features, light_tracing=self.light_tracing, adaptive=self.adaptive)
+        self.features = dataclasses.replace(self.features, light_tracing=self.light_tracing, adaptive=self.adaptive,
+                                            gradient=self.gradient)
         # refused before anything is compiled or allocated: a film the machine cannot hold, or Warp cannot index
         check_film_size(self.scene.width, self.scene.height, self.replicates, self.features.moments,
                         self.light_tracing, self.device)
@@ -190,7 +205,8 @@ class Renderer:
         """Empty accumulators for this renderer's passes (``render_passes(film=...)`` adds to them)."""
         s = self.scene
         return Film(s.width, s.height, self.replicates, self.features.moments, self.light_kernel is not None,
-                    self._tiles(), self.device, "replicates" if self.sampler == "sobol" else "passes", self.adaptive)
+                    self._tiles(), self.device, "replicates" if self.sampler == "sobol" else "passes", self.adaptive,
+                    self.gradient)
 
     def render_passes(
         self,
@@ -246,13 +262,15 @@ class Renderer:
             p.light_samples = self.light_samples
             p.hide_emitters = int(it.hide_emitters)
             p.replicates = self.replicates
+            p.grad_material = self.grad_material
+            p.grad_light = self.grad_light
             return p
 
         # one recorded launch per tile: later launches only swap the pass parameters (cheaper than wp.launch)
         cmds = [wp.launch(self.kernel, dim=rows_of[t] * s.width,
                           inputs=[self.dscene.data, self.dscene.camera, params(t, first_pass), film.pass_limit],
                           outputs=[film.accum, film.accum_sq, film.accum_rep, film.accum_m2, film.discarded,
-                                   film.rays], device=self.device, record_cmd=True)
+                                   film.rays, film.accum_grad], device=self.device, record_cmd=True)
                 for t in range(tiles)]
 
         def launch(tile: int, first: int, n: int):

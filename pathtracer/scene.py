@@ -51,6 +51,7 @@ class Material:
     distribution: str = "beckmann"
     nonlinear: bool = False
     texture: int = -1  # >= 0: Scene.textures[texture] gives ``rgb`` per point (``rgb`` is then its mean)
+    name: str = ""  # the bsdf's id: names its parameters; bsdfs of different ids stay apart though equal
 
     @property
     def code(self) -> int:

@@ -1,0 +1,86 @@
+"""Make the Mitsuba 3 forward-mode gradient references (tests/data/grad_refs/): d image / d theta rendered by
+Mitsuba's ``prb`` on our scene files, for the test suite to compare ``pathtracer.render_forward`` against.
+
+    DRJIT_LIBLLVM_PATH=/usr/lib/x86_64-linux-gnu/libLLVM-19.so python examples/make_gradient_refs.py
+
+As Mitsuba's documentation gives it: ``mi.load_file(path, optimize=False)``, ``dr.enable_grad(params[key])``,
+``params.update()``, ``mi.render(..., integrator=prb)``, ``dr.forward(params[key])``, ``dr.grad(image)``: the tangent
+1 in each of the parameter's three channels. Each reference is the mean of B renders of different seeds, with the
+per-pixel variance of that mean beside it (``*_var.exr``); 32x24 pixels.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+WIDTH, HEIGHT = 32, 24
+CASES = [
+    ("cornell_box", "red.reflectance.value"),
+    ("cornell_box", "light.emitter.radiance.value"),
+    ("cornell_box_mirror", "red.reflectance.value"),  # also seen through the mirror sphere
+]
+# (not the mirror's specular_reflectance: prb differentiates BSDF evaluations, and a delta lobe has none, so
+# Mitsuba 3.9 raises "not attached to the AD graph"; tests/test_gradients.py checks ours by central differences)
+
+
+def ref_name(scene: str, key: str) -> str:
+    return f"{scene}__{key.split('.')[0]}_{key.split('.')[-2]}"
+
+
+def main(argv=None) -> int:
+    import drjit as dr
+    import mitsuba as mi
+
+    import pathtracer
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--spp", type=int, default=16384)
+    ap.add_argument("--batches", type=int, default=16)
+    ap.add_argument("--out", default=str(ROOT / "tests" / "data" / "grad_refs"))
+    a = ap.parse_args(argv)
+    mi.set_variant("llvm_ad_rgb" if os.environ.get("DRJIT_LIBLLVM_PATH") else "scalar_rgb")
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    meta = {"width": WIDTH, "height": HEIGHT, "spp": a.spp, "batches": a.batches, "mitsuba": mi.__version__,
+            "variant": mi.variant(), "refs": {}}
+    for scene_name, key in CASES:
+        path = ROOT / "scenes" / f"{scene_name}.xml"
+        ours = pathtracer.load_file(str(path), width=WIDTH, height=HEIGHT)
+        scene = mi.load_file(str(path), optimize=False, width=WIDTH, height=HEIGHT)
+        prb = mi.load_dict({"type": "prb", "max_depth": ours.integrator.max_depth,
+                            "rr_depth": ours.integrator.rr_depth})
+        params = mi.traverse(scene)
+        t0 = time.perf_counter()
+        grads = []
+        for b in range(a.batches):
+            dr.enable_grad(params[key])
+            params.update()
+            image = mi.render(scene, params, integrator=prb, spp=a.spp // a.batches, seed=1000 + b)
+            dr.forward(params[key])
+            grads.append(np.array(dr.grad(image), dtype=np.float64))
+            dr.disable_grad(params[key])
+        g = np.stack(grads)
+        mean = g.mean(axis=0)
+        var = g.var(axis=0, ddof=1) / len(g)
+        name = ref_name(scene_name, key)
+        pathtracer.write_image(str(out / f"{name}.exr"), mean.astype(np.float32))
+        pathtracer.write_image(str(out / f"{name}_var.exr"), var.astype(np.float32))
+        meta["refs"][name] = {"scene": f"scenes/{scene_name}.xml", "key": key,
+                              "seconds": time.perf_counter() - t0}
+        print(f"{name}: |grad| max {np.abs(mean).max():.3f}, mean {mean.mean():.4f}, "
+              f"{time.perf_counter() - t0:.1f} s", flush=True)
+    (out / "refs.json").write_text(json.dumps(meta, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

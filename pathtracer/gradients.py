@@ -1,0 +1,158 @@
+"""Gradients of a rendered image with respect to the scene's reflectances and light radiances.
+
+Parameters are named as Mitsuba's ``mi.traverse`` names them: ``red.reflectance.value`` for a diffuse bsdf of id
+``red``, ``mirror.specular_reflectance.value`` for a mirror (Mitsuba's conductor of material "none"), and
+``light.emitter.radiance.value`` for the area emitter of a rectangle of id ``light``.
+
+The derivatives are forward-mode, carried along each path beside its radiance (kernels/integrator.py, the
+``gradient`` variant): d beta and dL, exact for the path as sampled. Sampling is detached, as in Mitsuba's
+``prb``: the directions, light samples and roulette's survival probability do not move with the parameter, so
+the estimate of every path is a polynomial in the reflectances and linear in the radiances, and its derivative
+is taken exactly (tests/test_gradients.py checks it against central differences with the same random numbers).
+Memory is O(1) in the path length: nothing is stored per vertex.
+
+Not differentiable (yet): geometry (it needs the boundary terms of the visibility changes: interior derivatives
+alone are badly biased), textures, glossy materials (plastic, rough conductors and plastics), and emitters other
+than parallelograms. The channels are independent (RGB: the red reflectance moves only the red image), so the
+forward image with the tangent 1 in every channel is also each channel's own derivative, and a backward product
+with a weight image is one sum per channel.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import MutableMapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from pathtracer.errors import RenderError
+
+KINDS = {"diffuse": "reflectance", "mirror": "specular_reflectance"}
+
+
+@dataclass(frozen=True)
+class Param:
+    """Where a parameter lives: a material's ``rgb`` (``kind`` "material") or a parallelogram light's radiance."""
+
+    kind: str
+    index: int
+
+
+def parameters(scene) -> dict[str, Param]:
+    """The differentiable parameters of ``scene``, by Mitsuba's names."""
+    out: dict[str, Param] = {}
+    for i, m in enumerate(scene.materials):
+        if m.name and m.kind in KINDS and m.texture < 0:
+            out[f"{m.name}.{KINDS[m.kind]}.value"] = Param("material", i)
+            if m.twosided:  # Mitsuba nests the bsdf in a twosided one: both names work
+                out[f"{m.name}.brdf_0.{KINDS[m.kind]}.value"] = Param("material", i)
+    for mesh in scene.meshes:
+        if mesh.light >= 0 and mesh.name:
+            out[f"{mesh.name}.emitter.radiance.value"] = Param("light", mesh.light)
+    return out
+
+
+class SceneParameters(MutableMapping):
+    """``traverse(scene)``: key -> the parameter's current value, numpy (3,); assigning one changes the scene
+    (render it again to see the change)."""
+
+    def __init__(self, scene):
+        self.scene = scene
+        self.params = parameters(scene)
+
+    def __getitem__(self, key: str) -> np.ndarray:
+        p = self._param(key)
+        if p.kind == "material":
+            return np.array(self.scene.materials[p.index].rgb, dtype=np.float64)
+        return np.array(self.scene.lights[p.index].radiance, dtype=np.float64)
+
+    def __setitem__(self, key: str, value) -> None:
+        p = self._param(key)
+        v = np.broadcast_to(np.asarray(value, dtype=np.float64), (3,))
+        if not (np.all(np.isfinite(v)) and np.all(v >= 0)):
+            raise RenderError(f"{key}: a value must be three finite numbers >= 0, got {np.asarray(value).tolist()}")
+        rgb = tuple(float(x) for x in v)
+        if p.kind == "material":
+            self.scene.materials[p.index] = dataclasses.replace(self.scene.materials[p.index], rgb=rgb)
+        else:
+            self.scene.lights[p.index] = dataclasses.replace(self.scene.lights[p.index], radiance=rgb)
+
+    def __delitem__(self, key):
+        raise RenderError("scene parameters cannot be removed")
+
+    def __iter__(self):
+        return iter(self.params)
+
+    def __len__(self) -> int:
+        return len(self.params)
+
+    def _param(self, key: str) -> Param:
+        try:
+            return self.params[key]
+        except KeyError:
+            known = ", ".join(sorted(self.params)) or "none"
+            raise RenderError(f"unknown or non-differentiable parameter {key!r} (this scene has: {known})") from None
+
+
+def traverse(scene) -> SceneParameters:
+    """The scene's differentiable parameters, readable and assignable by name (Mitsuba's ``mi.traverse``)."""
+    return SceneParameters(scene)
+
+
+def _renderer(scene, opts: dict):
+    from pathtracer.render import Renderer
+
+    if opts.get("light_tracing"):
+        raise RenderError("gradients are not available with light tracing")
+    opts = {k: v for k, v in opts.items() if k != "light_tracing"}
+    return Renderer(scene, gradient=True, light_tracing=False, **opts)
+
+
+def _forward(r, key: str, params: dict, spp: int, seed: int):
+    p = params.get(key)
+    if p is None:
+        known = ", ".join(sorted(params)) or "none"
+        raise RenderError(f"unknown or non-differentiable parameter {key!r} (this scene has: {known})")
+    r.grad_material = p.index if p.kind == "material" else -1
+    r.grad_light = p.index if p.kind == "light" else -1
+    sums = r.render_passes(seed=seed, first_pass=0, count=spp)
+    grad = (sums.grad_sum / max(sums.passes, 1)).astype(np.float32)
+    return sums.mean, grad
+
+
+def render_forward(scene, key: str, spp: int | None = None, seed: int | None = None, **opts):
+    """(image, gradient image): the render and d image / d theta for parameter ``key``, the tangent 1 in each of its
+    three channels (as Mitsuba's ``dr.forward``); float32 (H, W, 3) each. ``opts``: as ``Renderer``'s."""
+    spp = scene.spp if spp is None else spp
+    seed = scene.sampler_seed if seed is None else seed
+    r = _renderer(scene, opts)
+    try:
+        return _forward(r, key, parameters(scene), spp, seed)
+    finally:
+        r.close()
+
+
+def render_backward(scene, keys, grad_image, spp: int | None = None, seed: int | None = None,
+                    **opts) -> dict[str, np.ndarray]:
+    """key -> (3,) numpy: the sum over pixels of ``grad_image`` times d image / d theta, per channel of theta (the
+    adjoint of ``render_forward`` for a loss whose gradient with respect to the image is ``grad_image``).
+
+    Computed from one forward-mode render per key, with the same seed (exact, and costs one render per key;
+    path replay, one render for every key at once, is not done yet)."""
+    keys = [keys] if isinstance(keys, str) else list(keys)
+    spp = scene.spp if spp is None else spp
+    seed = scene.sampler_seed if seed is None else seed
+    w = np.asarray(grad_image, dtype=np.float64)
+    if w.shape != (scene.height, scene.width, 3):
+        raise RenderError(f"grad_image must be ({scene.height}, {scene.width}, 3), got {w.shape}")
+    params = parameters(scene)
+    r = _renderer(scene, opts)
+    try:
+        out = {}
+        for key in keys:
+            _, g = _forward(r, key, params, spp, seed)
+            out[key] = np.einsum("hwc,hwc->c", w, g.astype(np.float64))
+        return out
+    finally:
+        r.close()
