@@ -97,3 +97,19 @@ def test_bench_rays_tiny(tmp_path):
     assert all(bad == 0 for bad, _ in report["leaks"]["wide"].values())
     (row,) = report["setup"]
     assert row["triangles"] == 320 and row["ready"] > 0 and row["wp_mesh_build"] > 0
+
+
+def test_inverse_albedo_tiny(tmp_path):
+    """The inverse-rendering example, tiny (Mitsuba left out): Adam moves the red wall toward its true colour."""
+    out = tmp_path / "inv.json"
+    run_example("examples/inverse_albedo.py", "--size", "16", "--iterations", "20", "--spp", "4", "--runs", "1",
+                "--target-spp", "64", "--mitsuba-variant", "", "--json", str(out))
+    r = json.loads(out.read_text())["first_runs"]["pathtracer"]
+    assert r["history"][-1]["param_error"] < 0.5 * r["history"][0]["param_error"]
+
+
+def test_bench_gradients_tiny(tmp_path):
+    out = tmp_path / "g.json"
+    run_example("examples/bench_gradients.py", "--size", "8", "--spp", "2", "--reps", "1", "--json", str(out))
+    assert set(json.loads(out.read_text())["median_seconds"]) == {
+        "render", "render_forward", "render_backward, 1 key", "render_backward, 2 keys"}
