@@ -3,8 +3,9 @@
     python examples/bench_gradients.py --json docs/bench_gradients.json
 
 cornell_box at 128x128, 64 spp, medians of 5 in one process, kernels cached: the plain render (``render``), the
-forward-mode derivative image (``render_forward``: the image and its derivative), and ``render_backward`` for one
-and for two parameters (one forward-mode render per parameter).
+forward-mode derivative image (``render_forward``: the image and its derivative), and ``render_backward`` by
+path replay (one render, each path traced twice, for one parameter or all of them) and by forward mode (one
+render per parameter).
 """
 
 from __future__ import annotations
@@ -33,11 +34,16 @@ def main() -> None:
     scene = pathtracer.load_file(str(ROOT / "scenes" / "cornell_box.xml"), width=a.size, height=a.size)
     w = np.ones((a.size, a.size, 3))
     keys = ["red.reflectance.value", "light.emitter.radiance.value"]
+    all_keys = list(pathtracer.traverse(scene))
     cases = {
         "render": lambda: pathtracer.render(scene, spp=a.spp, seed=1, progress=False, light_tracing=False),
         "render_forward": lambda: pathtracer.render_forward(scene, keys[0], spp=a.spp, seed=1),
-        "render_backward, 1 key": lambda: pathtracer.render_backward(scene, keys[:1], w, spp=a.spp, seed=1),
-        "render_backward, 2 keys": lambda: pathtracer.render_backward(scene, keys, w, spp=a.spp, seed=1),
+        "render_backward (path replay), 1 key": lambda: pathtracer.render_backward(scene, keys[:1], w, spp=a.spp,
+                                                                                  seed=1),
+        "render_backward (path replay), all keys": lambda: pathtracer.render_backward(scene, all_keys, w,
+                                                                                     spp=a.spp, seed=1),
+        "render_backward (forward), 2 keys": lambda: pathtracer.render_backward(scene, keys, w, spp=a.spp, seed=1,
+                                                                               method="forward"),
     }
     for f in cases.values():
         f()  # compile (cached) and warm up
@@ -51,7 +57,7 @@ def main() -> None:
     report = {"scene": f"cornell_box {a.size}x{a.size}", "spp": a.spp, "reps": a.reps, "median_seconds": med,
               "seconds": times, "over_render": {k: med[k] / med["render"] for k in med}}
     for k in cases:
-        print(f"{k:26s} {med[k]:.3f} s  ({med[k] / med['render']:.2f}x render)")
+        print(f"{k:42s} {med[k]:.3f} s  ({med[k] / med['render']:.2f}x render)")
     if a.json:
         Path(a.json).write_text(json.dumps(report, indent=1))
 

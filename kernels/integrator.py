@@ -38,7 +38,7 @@ from kernels.sobol import independent4, padded_sobol4, replicate_seed
 from kernels.sampling import pick_in_cdf, reflect, sample_cosine_around, sample_parallelogram
 from kernels.sphrect import sample_spherical_rectangle
 from kernels.sphere import SELF_FAR, SELF_NONE, SELF_SKIP, ray_sphere
-from kernels.types import CameraData, Hit, PassParams, SceneData
+from kernels.types import Adjoint, CameraData, Hit, PassParams, SceneData
 
 VIEW_RADIANCE = 0
 VIEW_DIRECTION = 1
@@ -105,6 +105,7 @@ class Features:
     moments: bool = False  # Mitsuba's moment integrator: also sum each sample's squared XYZ (kernels/film.py)
     adaptive: bool = False  # per-pixel pass limits (adaptive sampling, pathtracer/adaptive.py)
     gradient: bool = False  # forward-mode derivatives of each path's radiance (pathtracer/gradients.py)
+    backward: bool = False  # path replay: every reflectance's and radiance's adjoint at once (pathtracer/gradients.py)
 
     @property
     def other_materials(self) -> bool:
@@ -272,6 +273,7 @@ def make_render_kernel(features: Features):
     MOMENTS = features.moments
     ADAPTIVE = features.adaptive
     GRAD = features.gradient
+    BACKWARD = features.backward
 
     trace, occluded, occluded_but_face = make_tracers(features)
     sample_bsdf, eval_nee = make_materials(features)
@@ -484,9 +486,11 @@ def make_render_kernel(features: Features):
 
     @wp.func
     def Li(scene: SceneData, cam: CameraData, params: PassParams, col: int, row: int, sample_index: wp.uint32,
-           seed: wp.uint32) -> PathSample:
+           seed: wp.uint32, replay: int, L_total: wp.vec3, adj: Adjoint) -> PathSample:
         """One camera path through pixel (col, row): sample ``sample_index`` of the sequence of ``seed``; the
-        radiance it carries."""
+        radiance it carries. Backward variants, ``replay`` 1: the same path again, knowing its radiance
+        ``L_total``, adding each parameter's share of the loss gradient into ``adj`` (path replay: at a vertex of
+        material m, the radiance still to come, L_total - L, carries one factor of m's reflectance)."""
         key = wp.vec3ui(wp.uint32(row * cam.width + col), sample_index, seed)
 
         # ---------------- camera ray ----------------
@@ -519,6 +523,11 @@ def make_render_kernel(features: Features):
         prev_p = wp.vec3(0.0)
         prev_ns = wp.vec3(0.0)  # the shading normal there (the environment's light samples are cosine-weighted)
         eta_scale = float(1.0)  # product of the relative indices crossed (for roulette, as Mitsuba)
+        if wp.static(BACKWARD):
+            adj_tile = params.row_offset  # this tile's row of the adjoints
+            adj_w = wp.vec3(0.0)  # replay: dLoss/dpixel / spp
+            if replay != 0:
+                adj_w = adj.weight[row * cam.width + col]
         # forward-mode derivatives (gradient variants): dL/dtheta and d beta/dtheta. Sampling is detached (the
         # directions, light samples and roulette's probability do not move with theta), so each path's value is a
         # polynomial in the reflectances and linear in the radiances, and these are its exact derivatives
@@ -583,6 +592,10 @@ def make_render_kernel(features: Features):
                                 dL += wp.cw_mul(dbeta, scene.light_radiance[hit.light])
                                 if hit.light == params.grad_light:
                                     dL += beta
+                            if wp.static(BACKWARD):  # (backward variants are made without MIS)
+                                if replay != 0 and hit.light < adj.num_lights:
+                                    wp.atomic_add(adj.radiance, adj_tile * adj.num_lights + hit.light,
+                                                  wp.vec3d(wp.cw_mul(adj_w, beta)))
 
                 if params.max_depth >= 0 and depth + 1 >= params.max_depth:
                     break
@@ -613,6 +626,16 @@ def make_render_kernel(features: Features):
                 is_delta = bool(False)  # glass or a smooth conductor: sampled only
                 if wp.static(DELTA_MATERIALS):
                     is_delta = kind == MAT_DIELECTRIC or kind == MAT_THIN_DIELECTRIC or kind == MAT_CONDUCTOR
+                if wp.static(BACKWARD):
+                    # everything this path gathers from here on (next-event estimates here, and all after the
+                    # bounce) carries this vertex's reflectance once: d/d rho of it is that radiance over rho
+                    if replay != 0 and (kind == MAT_DIFFUSE or is_mirror):
+                        L_rem = L_total - L
+                        share = wp.vec3(0.0)
+                        for c in range(3):
+                            if albedo[c] > 0.0:
+                                share[c] = adj_w[c] * L_rem[c] / albedo[c]
+                        wp.atomic_add(adj.rgb, adj_tile * adj.num_materials + mat, wp.vec3d(share))
 
                 wi = wp.vec3(0.0)
                 weight = albedo  # f cos / pdf of the sampled direction
@@ -689,6 +712,11 @@ def make_render_kernel(features: Features):
                             if wp.static(GRAD):
                                 if l == params.grad_light:
                                     dLd = Ll / float(params.light_samples)
+                            if wp.static(BACKWARD):  # d/dLe_l of beta albedo Le_l Ll / (pi K)
+                                if replay != 0:
+                                    wp.atomic_add(adj.radiance, adj_tile * adj.num_lights + l, wp.vec3d(
+                                        wp.cw_mul(wp.cw_mul(adj_w, wp.cw_mul(beta, albedo)), Ll)
+                                        * (1.0 / (wp.pi * float(params.light_samples)))))
                     if wp.static(OTHER_LIGHTS):
                         Ld += other_lights(scene, params, hit, ng, ns, mat, kind, albedo, d, key, dim, depth)
                         # the dims other_lights drew: K per sphere light, mesh light and environment
@@ -780,6 +808,7 @@ def make_render_kernel(features: Features):
         cam: CameraData,
         params: PassParams,
         pass_limit: wp.array(dtype=wp.uint32),  # adaptive only (else one unused element): a pixel's passes end there
+        adj: Adjoint,  # backward variants only (else empty)
         # outputs
         accum: wp.array(dtype=wp.vec3d),
         accum_sq: wp.array(dtype=wp.vec3d),
@@ -826,8 +855,11 @@ def make_render_kernel(features: Features):
             if wp.static(SOBOL):
                 sample_index = p / wp.uint32(params.replicates)
                 seed = replicate_seed(params.seed, rep)
-            sample = Li(scene, cam, params, col, row, sample_index, seed)
+            sample = Li(scene, cam, params, col, row, sample_index, seed, 0, wp.vec3(0.0), adj)
             finite = wp.isfinite(sample.L)
+            if wp.static(BACKWARD):
+                if finite:  # path replay: the same path, with its radiance known
+                    Li(scene, cam, params, col, row, sample_index, seed, 1, sample.L, adj)
             if wp.static(GRAD):
                 finite = finite and wp.isfinite(sample.dL)
             if finite:

@@ -141,6 +141,19 @@ class PassParams:
 
 
 @wp.struct
+class Adjoint:
+    """Path replay's inputs and outputs (backward gradient variants; elsewhere empty): each pixel's weight
+    dLoss/dpixel / spp, and the float64 adjoints of the material reflectances and parallelogram radiances, one
+    row of them per tile (a tile is rendered by one worker at a time: Warp's CPU atomics are plain adds)."""
+
+    weight: wp.array(dtype=wp.vec3)
+    rgb: wp.array(dtype=wp.vec3d)  # [tile * num_materials + material]
+    radiance: wp.array(dtype=wp.vec3d)  # [tile * num_lights + light]
+    num_materials: int
+    num_lights: int
+
+
+@wp.struct
 class Ray:
     o: wp.vec3
     d: wp.vec3  # unit

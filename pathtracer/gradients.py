@@ -4,8 +4,11 @@ Parameters are named as Mitsuba's ``mi.traverse`` names them: ``red.reflectance.
 ``red``, ``mirror.specular_reflectance.value`` for a mirror (Mitsuba's conductor of material "none"), and
 ``light.emitter.radiance.value`` for the area emitter of a rectangle of id ``light``.
 
-The derivatives are forward-mode, carried along each path beside its radiance (kernels/integrator.py, the
-``gradient`` variant): d beta and dL, exact for the path as sampled. Sampling is detached, as in Mitsuba's
+Forward mode carries the derivatives along each path beside its radiance (kernels/integrator.py, the
+``gradient`` variant): d beta and dL, exact for the path as sampled. Reverse mode is path replay
+backpropagation (Vicini et al. 2021; the ``backward`` variant): each path is traced, then traced again with its
+radiance known, and at every vertex the radiance still to come, over the vertex's reflectance, is added into
+that material's adjoint (at every emitter hit and light sample, the throughput into that light's). Sampling is detached, as in Mitsuba's
 ``prb``: the directions, light samples and roulette's survival probability do not move with the parameter, so
 the estimate of every path is a polynomial in the reflectances and linear in the radiances, and its derivative
 is taken exactly (tests/test_gradients.py checks it against central differences with the same random numbers).
@@ -134,25 +137,49 @@ def render_forward(scene, key: str, spp: int | None = None, seed: int | None = N
 
 
 def render_backward(scene, keys, grad_image, spp: int | None = None, seed: int | None = None,
-                    **opts) -> dict[str, np.ndarray]:
+                    method: str = "auto", **opts) -> dict[str, np.ndarray]:
     """key -> (3,) numpy: the sum over pixels of ``grad_image`` times d image / d theta, per channel of theta (the
     adjoint of ``render_forward`` for a loss whose gradient with respect to the image is ``grad_image``).
 
-    Computed from one forward-mode render per key, with the same seed (exact, and costs one render per key;
-    path replay, one render for every key at once, is not done yet)."""
+    ``method`` "replay": path replay backpropagation, every parameter's adjoint from one render that traces each
+    path twice (kernels/integrator.py: the backward variant; 1.8x a render, examples/bench_gradients.py);
+    "forward": one forward-mode render per key (1x a render per key; the same derivatives, summed in another
+    order); "auto" (default): forward for one key, replay for more."""
     keys = [keys] if isinstance(keys, str) else list(keys)
     spp = scene.spp if spp is None else spp
     seed = scene.sampler_seed if seed is None else seed
     w = np.asarray(grad_image, dtype=np.float64)
     if w.shape != (scene.height, scene.width, 3):
         raise RenderError(f"grad_image must be ({scene.height}, {scene.width}, 3), got {w.shape}")
+    if method not in ("auto", "replay", "forward"):
+        raise RenderError(f"unknown backward method {method!r} (auto, replay or forward)")
+    if method == "auto":
+        method = "forward" if len(keys) == 1 else "replay"
     params = parameters(scene)
-    r = _renderer(scene, opts)
+    for key in keys:
+        if key not in params:
+            known = ", ".join(sorted(params)) or "none"
+            raise RenderError(f"unknown or non-differentiable parameter {key!r} (this scene has: {known})")
+    if method == "forward":
+        r = _renderer(scene, opts)
+        try:
+            out = {}
+            for key in keys:
+                _, g = _forward(r, key, params, spp, seed)
+                out[key] = np.einsum("hwc,hwc->c", w, g.astype(np.float64))
+            return out
+        finally:
+            r.close()
+    from pathtracer.render import Renderer
+
+    if opts.get("light_tracing"):
+        raise RenderError("gradients are not available with light tracing")
+    opts = {k: v for k, v in opts.items() if k != "light_tracing"}
+    r = Renderer(scene, backward=True, light_tracing=False, **opts)
     try:
-        out = {}
-        for key in keys:
-            _, g = _forward(r, key, params, spp, seed)
-            out[key] = np.einsum("hwc,hwc->c", w, g.astype(np.float64))
-        return out
+        r.set_adjoint(w / spp)
+        r.render_passes(seed=seed, first_pass=0, count=spp)
+        rgb, rad = r.adjoint()
     finally:
         r.close()
+    return {key: (rgb if params[key].kind == "material" else rad)[params[key].index].copy() for key in keys}

@@ -24,7 +24,7 @@ import warp as wp
 
 from kernels.integrator import LIGHT_SAMPLINGS, RR_RULES, SAMPLERS, TRIANGLES, VIEWS, render_kernel
 from kernels.light_tracer import fold_pass, light_kernel
-from kernels.types import PassParams
+from kernels.types import Adjoint, PassParams
 from pathtracer.device_scene import DeviceScene
 from pathtracer.diagnostics import roulette_variance_warning
 from pathtracer.errors import RenderError
@@ -100,6 +100,8 @@ class Renderer:
     gradient: compile forward-mode derivatives in: the film's ``grad_sum`` gets dL/dtheta of every path, theta being
     the reflectance of material ``grad_material`` or the radiance of parallelogram light ``grad_light`` (set them
     before rendering; pathtracer/gradients.py). Diffuse and mirror materials only; no light tracing.
+    backward: compile path replay in: ``set_adjoint(weight)`` then render, and ``adjoint()`` gives every material's
+    and parallelogram light's share of the loss gradient (pathtracer/gradients.py: render_backward).
     """
 
     scene: Scene
@@ -117,6 +119,7 @@ class Renderer:
     replicates: int | None = None
     adaptive: bool = False
     gradient: bool = False
+    backward: bool = False
     compile_seconds: float = field(init=False, default=0.0)
     grad_material: int = field(init=False, default=-1)  # gradient renderers: what render_into differentiates
     grad_light: int = field(init=False, default=-1)
@@ -164,7 +167,8 @@ class Renderer:
         # lands in (a box filter's film) through a pinhole; it knows diffuse surfaces and mirrors only
         self.adaptive = bool(self.adaptive)
         self.gradient = bool(self.gradient)
-        if self.gradient:
+        self.backward = bool(self.backward)
+        if self.gradient or self.backward:
             f = self.features
             if f.plastics or f.rough_conductors or f.rough_plastics or f.moments or f.textures:
                 raise RenderError("gradients are available on scenes of diffuse, mirror, glass and smooth conductor "
@@ -175,7 +179,8 @@ class Renderer:
             raise RenderError("adaptive sampling is not available with the moment integrator (its layers are "
                               "per-pass means)")
         possible = (not (self.features.pixel_filter or self.features.thin_lens or self.features.other_materials
-                         or self.features.textures or self.features.moments or self.adaptive or self.gradient)
+                         or self.features.textures or self.features.moments or self.adaptive or self.gradient
+                         or self.backward)
                     and self.scene.only_rect_lights
                     and self.features.mirrors and self.features.lights and self.view == "radiance"
                     and (self.max_depth < 0 or self.max_depth >= 3))
@@ -186,7 +191,7 @@ class Renderer:
         self.light_tracing_possible = possible
         self.light_tracing = wanted and possible
         self.features = dataclasses.replace(self.features, light_tracing=self.light_tracing, adaptive=self.adaptive,
-                                            gradient=self.gradient)
+                                            gradient=self.gradient, backward=self.backward)
         # refused before anything is compiled or allocated: a film the machine cannot hold, or Warp cannot index
         check_film_size(self.scene.width, self.scene.height, self.replicates, self.features.moments,
                         self.light_tracing, self.device)
@@ -200,6 +205,39 @@ class Renderer:
         self.compile_seconds = time.perf_counter() - t0
         with wp.ScopedDevice(self.device):
             self.dscene = DeviceScene(self.scene, self.device, self.triangles)
+        self.adj = self._empty_adjoint()
+
+    def _empty_adjoint(self) -> Adjoint:
+        a = Adjoint()
+        a.weight = wp.zeros(1, dtype=wp.vec3, device=self.device)
+        a.rgb = wp.zeros(1, dtype=wp.vec3d, device=self.device)
+        a.radiance = wp.zeros(1, dtype=wp.vec3d, device=self.device)
+        a.num_materials = 0
+        a.num_lights = 0
+        return a
+
+    def set_adjoint(self, weight: np.ndarray) -> None:
+        """Backward renderers: each pixel's weight (H, W, 3: dLoss/dpixel divided by the spp to come), and
+        zeroed adjoints."""
+        s = self.scene
+        tiles = self._tiles()
+        a = Adjoint()
+        a.weight = wp.array(np.ascontiguousarray(weight, dtype=np.float32).reshape(-1, 3), dtype=wp.vec3,
+                            device=self.device)
+        a.num_materials = len(s.materials)
+        a.num_lights = len(s.lights)
+        a.rgb = wp.zeros(max(1, tiles * a.num_materials), dtype=wp.vec3d, device=self.device)
+        a.radiance = wp.zeros(max(1, tiles * a.num_lights), dtype=wp.vec3d, device=self.device)
+        self.adj = a
+
+    def adjoint(self) -> tuple[np.ndarray, np.ndarray]:
+        """(materials (M, 3), lights (L, 3)) float64: the adjoints added since ``set_adjoint``, summed over
+        tiles."""
+        a = self.adj
+        tiles = self._tiles()
+        rgb = a.rgb.numpy()[: tiles * a.num_materials].reshape(tiles, a.num_materials, 3).sum(axis=0)
+        rad = a.radiance.numpy()[: tiles * a.num_lights].reshape(tiles, a.num_lights, 3).sum(axis=0)
+        return rgb, rad
 
     def new_film(self) -> Film:
         """Empty accumulators for this renderer's passes (``render_passes(film=...)`` adds to them)."""
@@ -268,7 +306,8 @@ class Renderer:
 
         # one recorded launch per tile: later launches only swap the pass parameters (cheaper than wp.launch)
         cmds = [wp.launch(self.kernel, dim=rows_of[t] * s.width,
-                          inputs=[self.dscene.data, self.dscene.camera, params(t, first_pass), film.pass_limit],
+                          inputs=[self.dscene.data, self.dscene.camera, params(t, first_pass), film.pass_limit,
+                                  self.adj],
                           outputs=[film.accum, film.accum_sq, film.accum_rep, film.accum_m2, film.discarded,
                                    film.rays, film.accum_grad], device=self.device, record_cmd=True)
                 for t in range(tiles)]

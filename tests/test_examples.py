@@ -112,4 +112,5 @@ def test_bench_gradients_tiny(tmp_path):
     out = tmp_path / "g.json"
     run_example("examples/bench_gradients.py", "--size", "8", "--spp", "2", "--reps", "1", "--json", str(out))
     assert set(json.loads(out.read_text())["median_seconds"]) == {
-        "render", "render_forward", "render_backward, 1 key", "render_backward, 2 keys"}
+        "render", "render_forward", "render_backward (path replay), 1 key", "render_backward (path replay), all keys",
+        "render_backward (forward), 2 keys"}
