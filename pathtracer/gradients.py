@@ -183,3 +183,60 @@ def render_backward(scene, keys, grad_image, spp: int | None = None, seed: int |
     finally:
         r.close()
     return {key: (rgb if params[key].kind == "material" else rad)[params[key].index].copy() for key in keys}
+
+
+# ---------------------------------------------------------------- the Warp-native form: wp.Tape
+
+
+def _runtime():
+    import warp as wp
+
+    ctx = getattr(getattr(wp, "_src", None), "context", None) or getattr(wp, "context")
+    ctx.init()
+    return ctx.runtime
+
+
+def render_wp(scene, params: dict, spp: int | None = None, seed: int | None = None, seed_grad: int | None = None,
+              **opts):
+    """The image as a ``wp.array`` of ``wp.vec3`` (H * W, row-major) rendered with the values of ``params``
+    (key -> ``wp.array`` of one ``wp.vec3``, ``requires_grad=True``), for optimisation loops in Warp:
+
+        with wp.Tape() as tape:
+            img = pathtracer.gradients.render_wp(scene, {"red.reflectance.value": rho}, spp=4, seed=it)
+            wp.launch(loss_kernel, dim=n, inputs=[img, target], outputs=[loss])
+        tape.backward(loss)        # rho.grad now holds dLoss/drho
+
+    Inside a tape, the render is recorded as one step whose backward pass is ``render_backward`` of the image's
+    adjoint (``img.grad``), from independent samples (``seed_grad``, default derived from ``seed``, as Mitsuba's
+    render does: the same samples would bias the loss gradient); its own kernels are not recorded.
+    """
+    import warp as wp
+
+    spp = scene.spp if spp is None else spp
+    seed = scene.sampler_seed if seed is None else seed
+    seed_grad = (seed * 0x9E3779B1 + 0x632BE5AB) % 2**32 if seed_grad is None else seed_grad
+    values = traverse(scene)
+    for key, arr in params.items():
+        values[key] = np.asarray(arr.numpy(), dtype=np.float64).reshape(-1)[:3]
+    runtime = _runtime()
+    tape, runtime.tape = runtime.tape, None  # our own launches are not the tape's: their adjoint is ours below
+    try:
+        from pathtracer.render import render
+
+        img = render(scene, spp=spp, seed=seed, progress=False, light_tracing=False, **opts)
+        device = next(iter(params.values())).device if params else "cpu"
+        out = wp.array(img.reshape(-1, 3), dtype=wp.vec3, device=device, requires_grad=True)
+    finally:
+        runtime.tape = tape
+    if tape is not None and params:
+        keys = list(params)
+
+        def backward():
+            g = out.grad.numpy().reshape(scene.height, scene.width, 3).astype(np.float64)
+            grads = render_backward(scene, keys, g, spp=spp, seed=seed_grad, **opts)
+            for key in keys:
+                a = params[key]
+                a.grad.assign((a.grad.numpy().reshape(-1, 3) + grads[key]).astype(np.float32))
+
+        tape.record_func(backward, [out, *params.values()])
+    return out
