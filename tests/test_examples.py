@@ -114,3 +114,10 @@ def test_bench_gradients_tiny(tmp_path):
     assert set(json.loads(out.read_text())["median_seconds"]) == {
         "render", "render_forward", "render_backward (path replay), 1 key", "render_backward (path replay), all keys",
         "render_backward (forward), 2 keys"}
+
+
+def test_torch_albedo_tiny():
+    """The PyTorch example (an optional extra: skipped where torch is not installed)."""
+    pytest.importorskip("torch")
+    r = run_example("examples/torch_albedo.py", "--size", "16", "--iterations", "10", "--spp", "2")
+    assert "iteration 10:" in r.stdout
