@@ -6,7 +6,9 @@ Mitsuba's ``prb`` on our scene files, for the test suite to compare ``pathtracer
 As Mitsuba's documentation gives it: ``mi.load_file(path, optimize=False)``, ``dr.enable_grad(params[key])``,
 ``params.update()``, ``mi.render(..., integrator=prb)``, ``dr.forward(params[key])``, ``dr.grad(image)``: the tangent
 1 in each of the parameter's three channels. Each reference is the mean of B renders of different seeds, with the
-per-pixel variance of that mean beside it (``*_var.exr``); 32x24 pixels.
+per-pixel variance of that mean beside it (``*_var.exr``); 32x24 pixels. Also Mitsuba's own gradient test
+configurations (tests/gradient_configs.py: DiffuseAlbedo, DiffuseAlbedoGI, AreaLightRadiance,
+DirectlyVisibleAreaLightRadiance), at 64x64, named ``mitsuba_config__<name>``.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))
 WIDTH, HEIGHT = 32, 24
 CASES = [
     ("cornell_box", "red.reflectance.value"),
@@ -52,12 +55,22 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     meta = {"width": WIDTH, "height": HEIGHT, "spp": a.spp, "batches": a.batches, "mitsuba": mi.__version__,
             "variant": mi.variant(), "refs": {}}
+    from gradient_configs import configs
+
+    jobs = []
     for scene_name, key in CASES:
         path = ROOT / "scenes" / f"{scene_name}.xml"
         ours = pathtracer.load_file(str(path), width=WIDTH, height=HEIGHT)
-        scene = mi.load_file(str(path), optimize=False, width=WIDTH, height=HEIGHT)
-        prb = mi.load_dict({"type": "prb", "max_depth": ours.integrator.max_depth,
-                            "rr_depth": ours.integrator.rr_depth})
+        jobs.append((ref_name(scene_name, key), key, ours.integrator.max_depth, ours.integrator.rr_depth,
+                     lambda path=path: mi.load_file(str(path), optimize=False, width=WIDTH, height=HEIGHT),
+                     {"scene": f"scenes/{scene_name}.xml", "key": key}))
+    for name, c in configs(mi.ScalarTransform4f).items():
+        jobs.append((f"mitsuba_config__{name}", c["key"], c["max_depth"], 5,
+                     lambda c=c: mi.load_dict(c["scene"], optimize=False),
+                     {"config": name, "key": c["key"], "threshold": c["threshold"]}))
+    for name, key, max_depth, rr_depth, load, info in jobs:
+        scene = load()
+        prb = mi.load_dict({"type": "prb", "max_depth": max_depth, "rr_depth": rr_depth})
         params = mi.traverse(scene)
         t0 = time.perf_counter()
         grads = []
@@ -71,11 +84,9 @@ def main(argv=None) -> int:
         g = np.stack(grads)
         mean = g.mean(axis=0)
         var = g.var(axis=0, ddof=1) / len(g)
-        name = ref_name(scene_name, key)
         pathtracer.write_image(str(out / f"{name}.exr"), mean.astype(np.float32))
         pathtracer.write_image(str(out / f"{name}_var.exr"), var.astype(np.float32))
-        meta["refs"][name] = {"scene": f"scenes/{scene_name}.xml", "key": key,
-                              "seconds": time.perf_counter() - t0}
+        meta["refs"][name] = dict(info, seconds=time.perf_counter() - t0)
         print(f"{name}: |grad| max {np.abs(mean).max():.3f}, mean {mean.mean():.4f}, "
               f"{time.perf_counter() - t0:.1f} s", flush=True)
     (out / "refs.json").write_text(json.dumps(meta, indent=1))

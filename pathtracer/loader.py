@@ -328,6 +328,7 @@ class _Builder:
         # file resolver; pathtracer.loader_xml.resolve_file)
         self.search_paths = search_paths if search_paths is not None else [base_dir]
         self.ids: dict[str, tuple[Mapping, str]] = {}
+        self.node_ids: dict[int, str] = {}  # id(node) -> its id (or top-level dict key): names its parameters
         self.materials: dict[int, Material] = {}
         self.textures: list[Texture] = []  # every texture a material uses (Scene.textures)
         self.texture_nodes: dict[int, Texture] = {}
@@ -353,6 +354,8 @@ class _Builder:
                 self.fail(_prop_where(node, path, "id"), f'"id" must be a non-empty string (got {_show(node["id"])})')
             if node["id"] != key_id:
                 ids.append(node["id"])
+        if ids:
+            self.node_ids[id(node)] = node["id"] if isinstance(node.get("id"), str) and node["id"] else ids[0]
         for i in ids:
             if i in self.ids:
                 self.fail(_where(node, path), f'duplicate id "{i}" (also used by {_where(*self.ids[i])})')
@@ -870,8 +873,8 @@ class _Builder:
                     self.fail(w("distribution"), f'unknown distribution "{dist}" (supported: beckmann, ggx)')
                 alpha = self.roughness(node, path, props)
                 mat = Material("roughconductor", rgb, eta=eta, k=k, alpha=alpha, distribution=dist, texture=tex)
-        if isinstance(node.get("id"), str) and node["id"]:  # its parameters' names (pathtracer/gradients.py)
-            mat = dataclasses.replace(mat, name=node["id"])
+        if self.node_ids.get(id(node)):  # its parameters' names (pathtracer/gradients.py)
+            mat = dataclasses.replace(mat, name=self.node_ids[id(node)])
         self.visiting.discard(key)
         self.materials[key] = mat
         return mat
@@ -1011,6 +1014,11 @@ class _Builder:
             radiance = self.emitter_colour(emitter.node, emitter.path, e_props, "radiance")
         if bsdf is not None:
             material = self.material(bsdf.node, bsdf.path)
+            shape_id = node.get("id") if isinstance(node.get("id"), str) else None
+            if shape_id is None and not (isinstance(node, XmlDict) or str(key).startswith("_arg_")):
+                shape_id = str(key)
+            if not material.name and shape_id:  # Mitsuba names a nested bsdf's parameters "<shape>.bsdf.*"
+                material = dataclasses.replace(material, name=f"{shape_id}.bsdf")
         elif emitter is not None:
             material = Material("diffuse", (0.0, 0.0, 0.0))  # Mitsuba: an emitter's default bsdf is black
         else:

@@ -51,7 +51,9 @@ class Material:
     distribution: str = "beckmann"
     nonlinear: bool = False
     texture: int = -1  # >= 0: Scene.textures[texture] gives ``rgb`` per point (``rgb`` is then its mean)
-    name: str = ""  # the bsdf's id: names its parameters; bsdfs of different ids stay apart though equal
+    # the bsdf's id: names its parameters (pathtracer/gradients.py); not part of equality (it changes nothing in
+    # the image), but Scene.add_material keeps bsdfs of different ids apart, so that each has its own gradient
+    name: str = field(default="", compare=False)
 
     @property
     def code(self) -> int:
@@ -331,7 +333,7 @@ class Scene:
     def add_material(self, material: Material) -> int:
         """Index of ``material``, adding it if new."""
         for i, m in enumerate(self.materials):
-            if m == material:
+            if m == material and m.name == material.name:
                 return i
         self.materials.append(material)
         return len(self.materials) - 1

@@ -164,11 +164,24 @@ def test_forward_gradient_agrees_with_mitsuba_prb(name):
     """Against Mitsuba 3.9's prb forward-mode gradient images of the same files (examples/make_gradient_refs.py,
     16384 spp): within noise (mean squared difference over the summed variances near its expected 1.15, at most
     1.5; the image mean's z within 4), exact where both are noiseless, and Mitsuba's own
-    test metric mean(|a - b| / max(|b|, 0.2)) far below its 0.05 (measured 0.0002-0.006)."""
+    test metric mean(|a - b| / max(|b|, 0.2)) far below its 0.05 (measured 0.0003-0.009). Mitsuba's own
+    configurations (DiffuseAlbedo, DiffuseAlbedoGI, AreaLightRadiance, DirectlyVisibleAreaLightRadiance:
+    tests/gradient_configs.py) are held to the thresholds Mitsuba's test gives each (0.015-0.04)."""
     info = GRAD_META["refs"][name]
     ref = pathtracer.read_image(GRAD_REFS / f"{name}.exr").astype(np.float64)
     ref_var = pathtracer.read_image(GRAD_REFS / f"{name}_var.exr").astype(np.float64)
-    scene = pathtracer.load_file(str(ROOT / info["scene"]), width=GRAD_META["width"], height=GRAD_META["height"])
+    if "config" in info:  # Mitsuba's own test configurations, with its own threshold on its metric
+        from gradient_configs import configs
+        from pathtracer.transform import Transform
+
+        c = configs(Transform)[info["config"]]
+        scene = pathtracer.load_dict(c["scene"])
+        scene.integrator.max_depth = c["max_depth"]
+        threshold = c["threshold"]
+    else:
+        scene = pathtracer.load_file(str(ROOT / info["scene"]), width=GRAD_META["width"],
+                                     height=GRAD_META["height"])
+        threshold = 0.05  # (the issue's bound)
     ours, var, gs = batch_gradients(scene, info["key"])
     var_sum = var + ref_var
     noisy = var_sum > 0
@@ -178,7 +191,7 @@ def test_forward_gradient_agrees_with_mitsuba_prb(name):
     z = (ours.mean() - ref.mean()) / se
     metric = float(np.mean(np.abs(ours - ref) / np.maximum(np.abs(ref), 0.2)))
     print(f"\n[prb ref] {name}: chi {chi:.3f}, image mean z {z:+.2f}, Mitsuba's metric {metric:.4f}")
-    assert chi <= 1.5 and abs(z) <= 4 and metric <= 0.05
+    assert chi <= 1.5 and abs(z) <= 4 and metric <= threshold
 
 
 def test_mitsuba_gradient_reference_tells_parameters_apart():
