@@ -16,7 +16,8 @@ import numpy as np
 from pathtracer.errors import ImageIOError
 
 SUPPORTED_EXTENSIONS = (".exr", ".png")  # what we write
-READ_EXTENSIONS = SUPPORTED_EXTENSIONS + (".jpg", ".jpeg")  # what we read (JPEG textures, decoded as PNG is)
+# what we read: JPEG textures (decoded as PNG is) and Radiance RGBE (.hdr) maps, as Mitsuba reads them
+READ_EXTENSIONS = SUPPORTED_EXTENSIONS + (".jpg", ".jpeg", ".hdr", ".rgbe")
 LAYER_CHANNELS = "XYZ"
 RGB_LAYERS = ("stderr",)  # layers of RGB values (channels <name>.R, .G, .B); the others are XYZ, as Mitsuba's
 
@@ -148,7 +149,8 @@ def write_image(path: str | os.PathLike, image: np.ndarray, *, display: bool = F
 
 
 def read_image(path: str | os.PathLike) -> np.ndarray:
-    """Read an image as linear float32 (H, W, 3): EXR as stored, PNG and JPEG decoded through inverse sRGB."""
+    """Read an image as linear float32 (H, W, 3): EXR and Radiance HDR as stored, PNG and JPEG decoded through
+    inverse sRGB."""
     path = os.fspath(path)
     ext = _extension(path, READ_EXTENSIONS)
     try:
@@ -157,6 +159,8 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     except OSError as e:
         raise ImageIOError(f"{path}: cannot read: {_reason(e)}") from None
     try:
+        if ext in (".hdr", ".rgbe"):
+            return _read_rgbe(path)
         return _read_exr(path) if ext == ".exr" else _read_png(path)
     except ImageIOError:
         raise
@@ -198,6 +202,81 @@ def _read_exr(path: str) -> np.ndarray:
     else:
         raise ImageIOError(f"{path}: cannot read: no R, G, B (or Y) channels, found {sorted(channels)}")
     return np.stack([p.astype(np.float32) for p in planes], axis=-1)
+
+
+def _read_rgbe(path: str) -> np.ndarray:
+    """Radiance RGBE, as Mitsuba 3.9 reads it (src/core/bitmap.cpp: read_rgbe): a "#?" first line, FORMAT
+    32-bit_rle_rgbe, EXPOSURE and other header lines ignored, the "-Y H +X W" orientation only; scanlines run-length
+    encoded per channel (2, 2, width) or flat RGBE pixels; a pixel is (r, g, b) * 2^(e - 136), or 0 where e = 0."""
+    with open(path, "rb") as f:
+        data = f.read()
+
+    def bad(why: str):
+        return ImageIOError(f"{path}: cannot read: not a Radiance HDR file ({why})")
+
+    if not data.startswith(b"#?"):
+        raise bad("no #? header")
+    pos, fmt, size = data.find(b"\n") + 1, None, None
+    while size is None:
+        end = data.find(b"\n", pos)
+        if pos <= 0 or end < 0:
+            raise bad("no resolution line")
+        line = data[pos:end].decode("latin-1").strip()
+        pos = end + 1
+        if line.startswith("FORMAT="):
+            fmt = line[7:]
+        tokens = line.split()
+        if len(tokens) == 4 and tokens[0] in ("-Y", "+Y") and tokens[2] in ("+X", "-X"):
+            if (tokens[0], tokens[2]) != ("-Y", "+X"):
+                raise ImageIOError(f"{path}: cannot read: only the standard orientation -Y H +X W is supported "
+                                   f"(got {line})")
+            try:
+                size = (int(tokens[1]), int(tokens[3]))
+            except ValueError:
+                raise bad(f"resolution {line!r}") from None
+    if fmt != "32-bit_rle_rgbe":
+        raise ImageIOError(f"{path}: cannot read: only FORMAT=32-bit_rle_rgbe is supported (got "
+                           f"{fmt or 'no FORMAT line'})")
+    h, w = size
+    if h <= 0 or w <= 0:
+        raise bad(f"{w} x {h} pixels")
+    body = np.frombuffer(data, dtype=np.uint8, offset=pos)
+    rgbe = np.empty((h, w, 4), dtype=np.uint8)
+    flat = w < 8 or w > 0x7FFF or not (len(body) >= 4 and body[0] == 2 and body[1] == 2 and not body[2] & 0x80)
+    if flat:
+        if len(body) < h * w * 4:
+            raise bad("truncated pixels")
+        rgbe[:] = body[: h * w * 4].reshape(h, w, 4)
+    else:
+        i = 0
+        for y in range(h):
+            if i + 4 > len(body) or body[i] != 2 or body[i + 1] != 2 or (int(body[i + 2]) << 8 | body[i + 3]) != w:
+                raise bad(f"scanline {y} is not a run-length encoded scanline of width {w}")
+            i += 4
+            for c in range(4):
+                x = 0
+                row = rgbe[y, :, c]
+                while x < w:
+                    if i + 2 > len(body):
+                        raise bad("truncated scanline")
+                    count = int(body[i])
+                    if count > 128:  # a run of one value
+                        count -= 128
+                        if count > w - x:
+                            raise bad("bad scanline data")
+                        row[x:x + count] = body[i + 1]
+                        i += 2
+                    else:  # count literal values
+                        if count == 0 or count > w - x:
+                            raise bad("bad scanline data")
+                        if i + 1 + count > len(body):
+                            raise bad("truncated scanline")
+                        row[x:x + count] = body[i + 1:i + 1 + count]
+                        i += 1 + count
+                    x += count
+    e = rgbe[..., 3].astype(np.int32)
+    scale = np.where(e > 0, np.ldexp(np.float32(1.0), e - 136), np.float32(0.0)).astype(np.float32)
+    return (rgbe[..., :3].astype(np.float32) * scale[..., None]).astype(np.float32)
 
 
 def _read_png(path: str) -> np.ndarray:

@@ -69,7 +69,7 @@ emitter     point        intensity (1.0), position or to_world (translation only
 emitter     spot         intensity, cutoff_angle (20), beam_width (3/4 cutoff), to_world (local +z)
 emitter     directional  irradiance (1.0), direction or to_world (local +z)
 emitter     constant     radiance (1.0); one environment per scene
-emitter     envmap       filename (an OpenEXR or PNG latitude-longitude map), scale (1.0; >= 0),
+emitter     envmap       filename (an OpenEXR, Radiance HDR or PNG latitude-longitude map), scale (1.0; >= 0),
                          to_world (rotation only), mis_compensation (noise only); one
                          environment per scene
 =========== ============ ==========================================================================
@@ -927,8 +927,8 @@ class _Builder:
                 self.fail(w("format"), f'unknown format "{fmt}" (supported: auto, variant, float16, uint8)')
             self.value(node, path, props, "accel", BOOL, True)
             if os.path.splitext(filename)[1].lower() not in imageio.READ_EXTENSIONS:
-                self.fail(w("filename"), f'bitmap "{filename}": only OpenEXR (.exr), PNG and JPEG images are '
-                                         f'supported')
+                self.fail(w("filename"), f'bitmap "{filename}": only OpenEXR (.exr), Radiance HDR (.hdr), PNG '
+                                         f'and JPEG images are supported')
             file = resolve_file(filename, self.search_paths)
             try:
                 img = imageio.read_image(file)
@@ -1138,8 +1138,9 @@ class _Builder:
         lin = m[:3, :3]
         if np.max(np.abs(lin.T @ lin - np.eye(3))) > 1e-3 or np.linalg.det(lin) < 0:
             self.fail(w("to_world"), "an envmap's to_world may only rotate (Mitsuba maps unnormalised directions)")
-        if os.path.splitext(filename)[1].lower() not in (".exr", ".png"):
-            self.fail(w("filename"), f'envmap "{filename}": only OpenEXR (.exr) and PNG maps are supported')
+        if os.path.splitext(filename)[1].lower() not in (".exr", ".hdr", ".rgbe", ".png"):
+            self.fail(w("filename"), f'envmap "{filename}": only OpenEXR (.exr), Radiance HDR (.hdr) and PNG maps '
+                                     f'are supported')
         file = resolve_file(filename, self.search_paths)
         try:
             img = imageio.read_image(file)

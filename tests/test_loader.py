@@ -649,8 +649,8 @@ BAD_XML = [
     ('<emitter type="envmap"/>', '<emitter type="envmap">', 'envmap needs "filename"'),
     ('<emitter type="envmap"><string name="filename" value="nope.exr"/></emitter>', '<string name="filename">',
      'envmap "nope.exr": cannot read'),
-    ('<emitter type="envmap"><string name="filename" value="sky.hdr"/></emitter>', '<string name="filename">',
-     "only OpenEXR (.exr) and PNG maps are supported"),
+    ('<emitter type="envmap"><string name="filename" value="sky.tga"/></emitter>', '<string name="filename">',
+     "only OpenEXR (.exr), Radiance HDR (.hdr) and PNG maps are supported"),
     ('<emitter type="envmap"><string name="filename" value="a.exr"/><float name="scale" value="-1"/></emitter>',
      '<float name="scale">', "scale must be >= 0"),
     ('<emitter type="envmap"><string name="filename" value="a.exr"/><transform name="to_world"><scale value="2"/>'
@@ -1340,3 +1340,18 @@ def test_disk_light_faces_where_mitsuba_says(tmp_path):
         np.testing.assert_allclose(wind, np.broadcast_to(expect, wind.shape), atol=1e-9)
         assert abs(np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum() / 2
                    - np.pi) < 1e-9
+
+
+def test_radiance_hdr_maps_load_as_envmaps():
+    """Mitsuba reads .hdr envmaps (two of the public scenes use them): so do we, pixel for pixel (bitmaps read
+    .hdr files through the same reader; a reflectance must still lie in [0, 1])."""
+    from pathtracer.imageio import read_image
+
+    hdr = str(Path(__file__).parent / "data" / "hdr" / "rle_16x9.hdr")
+    s = load_dict({"type": "scene", "sensor": {"type": "perspective", "fov": 40},
+                   "sky": {"type": "envmap", "filename": hdr, "scale": 2.0}})
+    assert np.array_equal(s.envmap.image, read_image(hdr)) and s.envmap.scale == 2.0
+    with pytest.raises(SceneError, match="a reflectance texture must lie in"):
+        load_dict({"type": "scene", "sensor": {"type": "perspective", "fov": 40},
+                   "ball": {"type": "sphere", "bsdf": {"type": "diffuse", "reflectance": {
+                       "type": "bitmap", "filename": hdr}}}})

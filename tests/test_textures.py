@@ -88,7 +88,7 @@ def test_texture_errors_are_one_line(tmp_path):
     cases = [
         ({"type": "bitmap", "filename": str(tmp_path / "missing.png")}, "cannot read"),
         ({"type": "bitmap"}, 'bitmap needs "filename"'),
-        ({"type": "bitmap", "filename": "x.tga"}, "only OpenEXR (.exr), PNG and JPEG"),
+        ({"type": "bitmap", "filename": "x.tga"}, "only OpenEXR (.exr), Radiance HDR (.hdr), PNG and JPEG"),
         ({"type": "bitmap", "filename": "x.png", "wrap_mode": "tile"}, 'unknown wrap_mode "tile"'),
         ({"type": "checkerboard", "color0": 2.0}, "color0 must lie in [0, 1]"),
     ]
