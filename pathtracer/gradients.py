@@ -91,11 +91,16 @@ class SceneParameters(MutableMapping):
         return len(self.params)
 
     def _param(self, key: str) -> Param:
-        try:
-            return self.params[key]
-        except KeyError:
-            known = ", ".join(sorted(self.params)) or "none"
-            raise RenderError(f"unknown or non-differentiable parameter {key!r} (this scene has: {known})") from None
+        return _lookup(self.params, key)
+
+
+def _lookup(params: dict[str, Param], key: str) -> Param:
+    """``params[key]``, or a one-line RenderError naming what the scene has."""
+    p = params.get(key)
+    if p is None:
+        known = ", ".join(sorted(params)) or "none"
+        raise RenderError(f"unknown or non-differentiable parameter {key!r} (this scene has: {known})")
+    return p
 
 
 def traverse(scene) -> SceneParameters:
@@ -103,20 +108,18 @@ def traverse(scene) -> SceneParameters:
     return SceneParameters(scene)
 
 
-def _renderer(scene, opts: dict):
+def _renderer(scene, opts: dict, backward: bool = False):
+    """A forward-mode (``gradient``) or path-replay (``backward``) renderer of ``scene`` with ``opts``."""
     from pathtracer.render import Renderer
 
     if opts.get("light_tracing"):
         raise RenderError("gradients are not available with light tracing")
     opts = {k: v for k, v in opts.items() if k != "light_tracing"}
-    return Renderer(scene, gradient=True, light_tracing=False, **opts)
+    return Renderer(scene, gradient=not backward, backward=backward, light_tracing=False, **opts)
 
 
 def _forward(r, key: str, params: dict, spp: int, seed: int):
-    p = params.get(key)
-    if p is None:
-        known = ", ".join(sorted(params)) or "none"
-        raise RenderError(f"unknown or non-differentiable parameter {key!r} (this scene has: {known})")
+    p = _lookup(params, key)
     r.grad_material = p.index if p.kind == "material" else -1
     r.grad_light = p.index if p.kind == "light" else -1
     sums = r.render_passes(seed=seed, first_pass=0, count=spp)
@@ -157,9 +160,7 @@ def render_backward(scene, keys, grad_image, spp: int | None = None, seed: int |
         method = "forward" if len(keys) == 1 else "replay"
     params = parameters(scene)
     for key in keys:
-        if key not in params:
-            known = ", ".join(sorted(params)) or "none"
-            raise RenderError(f"unknown or non-differentiable parameter {key!r} (this scene has: {known})")
+        _lookup(params, key)
     if method == "forward":
         r = _renderer(scene, opts)
         try:
@@ -170,12 +171,7 @@ def render_backward(scene, keys, grad_image, spp: int | None = None, seed: int |
             return out
         finally:
             r.close()
-    from pathtracer.render import Renderer
-
-    if opts.get("light_tracing"):
-        raise RenderError("gradients are not available with light tracing")
-    opts = {k: v for k, v in opts.items() if k != "light_tracing"}
-    r = Renderer(scene, backward=True, light_tracing=False, **opts)
+    r = _renderer(scene, opts, backward=True)
     try:
         r.set_adjoint(w / spp)
         r.render_passes(seed=seed, first_pass=0, count=spp)
