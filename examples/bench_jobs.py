@@ -54,13 +54,21 @@ def measured_relmse(img: np.ndarray, ref: np.ndarray, ref_var: np.ndarray) -> fl
     return float(np.mean((img - ref) ** 2 / denom) - np.mean(ref_var / denom))
 
 
-def target_error(scene: str, target: float, seeds: range) -> dict:
+def with_reference(scene: str):
+    """(the scene at its committed Mitsuba reference's size, the reference, its variance): tests/data/refs."""
     import pathtracer
     from pathtracer.imageio import read_image
 
     refs = ROOT / "tests" / "data" / "refs"
     ref, var = read_image(refs / f"{scene}.exr"), read_image(refs / f"{scene}_var.exr")
     s = pathtracer.load_file(str(ROOT / "scenes" / f"{scene}.xml"), width=ref.shape[1], height=ref.shape[0])
+    return s, ref, var
+
+
+def target_error(scene: str, target: float, seeds: range) -> dict:
+    import pathtracer
+
+    s, ref, var = with_reference(scene)
     rows = []
     for seed in seeds:
         st: dict = {}
@@ -95,11 +103,8 @@ def sigint_resume(tmp: Path) -> dict:
 
 def adaptive_vs_uniform(scene: str, seconds: float, seeds: range) -> dict:
     import pathtracer
-    from pathtracer.imageio import read_image
 
-    refs = ROOT / "tests" / "data" / "refs"
-    ref, var = read_image(refs / f"{scene}.exr"), read_image(refs / f"{scene}_var.exr")
-    s = pathtracer.load_file(str(ROOT / "scenes" / f"{scene}.xml"), width=ref.shape[1], height=ref.shape[0])
+    s, ref, var = with_reference(scene)
     rows = []
     for seed in seeds:
         st: dict = {}

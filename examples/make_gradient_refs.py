@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -44,17 +43,14 @@ def main(argv=None) -> int:
     import mitsuba as mi
 
     import pathtracer
+    from make_mitsuba_refs import setup  # (this script's folder is on sys.path)
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--spp", type=int, default=16384)
     ap.add_argument("--batches", type=int, default=16)
     ap.add_argument("--out", default=str(ROOT / "tests" / "data" / "grad_refs"))
     a = ap.parse_args(argv)
-    mi.set_variant("llvm_ad_rgb" if os.environ.get("DRJIT_LIBLLVM_PATH") else "scalar_rgb")
-    out = Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
-    meta = {"width": WIDTH, "height": HEIGHT, "spp": a.spp, "batches": a.batches, "mitsuba": mi.__version__,
-            "variant": mi.variant(), "refs": {}}
+    out, meta = setup(mi, a.out, WIDTH, HEIGHT, a.spp, a.batches)
     from gradient_configs import configs
 
     jobs = []

@@ -41,6 +41,17 @@ def ref_name(scene: str, max_depth: int | None) -> str:
     return scene if max_depth is None else f"{scene}_d{max_depth}"
 
 
+def setup(mi, out_dir: str, width: int, height: int, spp: int, batches: int) -> tuple[Path, dict]:
+    """Mitsuba's LLVM variant where DRJIT_LIBLLVM_PATH is set (else scalar), the output folder made, and the
+    references' metadata started (also examples/make_gradient_refs.py)."""
+    mi.set_variant("llvm_ad_rgb" if os.environ.get("DRJIT_LIBLLVM_PATH") else "scalar_rgb")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    meta = {"width": width, "height": height, "spp": spp, "batches": batches, "mitsuba": mi.__version__,
+            "variant": mi.variant(), "refs": {}}
+    return out, meta
+
+
 def main(argv=None) -> int:
     import mitsuba as mi
 
@@ -52,11 +63,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=str(ROOT / "tests" / "data" / "refs"))
     ap.add_argument("--only", nargs="*", help="make only these references (names as in refs.json); keep the rest")
     a = ap.parse_args(argv)
-    mi.set_variant("llvm_ad_rgb" if os.environ.get("DRJIT_LIBLLVM_PATH") else "scalar_rgb")
-    out = Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
-    meta = {"width": WIDTH, "height": HEIGHT, "spp": a.spp, "batches": a.batches, "mitsuba": mi.__version__,
-            "variant": mi.variant(), "refs": {}}
+    out, meta = setup(mi, a.out, WIDTH, HEIGHT, a.spp, a.batches)
     if a.only:
         old = json.loads((out / "refs.json").read_text())
         if (old["width"], old["height"], old["spp"], old["batches"]) != (WIDTH, HEIGHT, a.spp, a.batches):
