@@ -346,6 +346,14 @@ def _loop(renderer, film, run_seed, budget, checkpoint, checkpoint_every, previe
     estimate = None  # the last relmse_estimate, with a target error
     decided = None  # the pass of the last adaptive decision
     step = getattr(renderer, "step_passes", None)  # the least a call can render: a pass, or to a unit's end
+    unit_sums = None  # one host copy of the film per unit, shared by whatever needs it until the next unit
+
+    def sums() -> PassSum:
+        nonlocal unit_sums
+        if unit_sums is None:
+            unit_sums = film.sums()
+        return unit_sums
+
     while True:
         if film.passes >= budget.spp:
             stop_reason = "spp"
@@ -357,7 +365,7 @@ def _loop(renderer, film, run_seed, budget, checkpoint, checkpoint_every, previe
             # decided before the pass is rendered, from the sums up to it: a resume at this pass decides again,
             # from the same sums, the same way
             if adaptive.is_decision(film.next_pass) and decided != film.next_pass:
-                film.set_limits(adaptive.decide(film.sums(), film.limits, film.next_pass))
+                film.set_limits(adaptive.decide(sums(), film.limits, film.next_pass))  # (counts unchanged)
                 decided = film.next_pass
             if int(film.limits.max()) <= film.next_pass:
                 stop_reason = "converged"  # every pixel has stopped
@@ -402,17 +410,10 @@ def _loop(renderer, film, run_seed, budget, checkpoint, checkpoint_every, previe
                 fit = int((budget.seconds - elapsed) / sec_per_pass)
             n = align(film.next_pass, n, left, fit)
         renderer.render_into(film, run_seed, film.next_pass, n, progress)
+        unit_sums = None
         now = time.perf_counter()
         # over the whole loop, not the last call: the farm's calls return early when units rendered ahead are in
         sec_per_pass = (now - t_loop) / max(film.passes - passes_at_loop, 1)
-        unit_sums = None  # one host copy per unit, shared by whatever needs it
-
-        def sums() -> PassSum:
-            nonlocal unit_sums
-            if unit_sums is None:
-                unit_sums = film.sums()
-            return unit_sums
-
         done_target = False
         if budget.target_error is not None and film.passes >= max(budget.min_passes, 4 * renderer.replicates):
             estimate = sums().relmse_estimate
@@ -426,10 +427,10 @@ def _loop(renderer, film, run_seed, budget, checkpoint, checkpoint_every, previe
         if done_target:
             stop_reason = "target_error"
             break
-    sums = film.sums()
+    final = sums()
     if checkpoint is not None:
-        write_checkpoint(checkpoint, sums, film.next_pass, config)
-    return Outcome(sums, stop_reason, config, extra_seconds, resumed)
+        write_checkpoint(checkpoint, final, film.next_pass, config)
+    return Outcome(final, stop_reason, config, extra_seconds, resumed)
 
 
 def film_bytes(width: int, height: int, replicates: int, moments: bool, light_tracing: bool) -> int:
