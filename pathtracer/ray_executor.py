@@ -272,7 +272,6 @@ class RayExecutor:
         self._load.pop(id(actor), None)
         if actor in self._actors:
             self._actors.remove(actor)
-            self.units_retried += 1
             if self._started_total < 4 * max(1, self._worker_count()) + 4:
                 self._start_worker()  # a replacement, used once it has started (it may never: a removed node)
 
@@ -303,7 +302,10 @@ class RayExecutor:
         returns stay in flight for the next call (``FarmFilm.close`` drops them)."""
         ray = self._connect()
         while film.next_pass < target:
-            self._ensure_workers() if not film.flying else self._admit(timeout=0)
+            if film.flying:
+                self._admit(timeout=0)  # replacements that have started since
+            else:
+                self._ensure_workers()
             self.issue(fr, film, horizon)
             if not film.flying:
                 raise RenderError("no unit of passes is left to render (the film is past its bound)")
@@ -319,6 +321,7 @@ class RayExecutor:
                     film.requeue.extend(film.flying.pop(r)[1] for r in lost)
                     film.requeue.append(unit)
                     film.requeue.sort()
+                    self.units_retried += 1 + len(lost)
                     continue
                 except ray.exceptions.RayTaskError as e:
                     raise _as_render_error(_cause(e)) from None
