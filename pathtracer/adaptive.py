@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pathtracer.errors import RenderError
-from pathtracer.film import PassSum, box3
+from pathtracer.film import PassSum
 
 DEFAULT_THRESHOLD = 1e-4  # a pixel's relMSE: Cycles' default noise threshold (0.01 relative error), squared
 MIN_PASSES = 64
@@ -69,8 +69,7 @@ class Adaptive:
 
 def pixel_errors(sums: PassSum) -> np.ndarray:
     """(H, W) estimated relMSE of each pixel's mean, as ``PassSum.relmse_estimate`` averages it."""
-    var = sums.variance_of_mean
-    return np.mean(var / (box3(sums.mean.astype(np.float64)) ** 2 + 0.01), axis=-1)
+    return np.mean(sums.relative_variance, axis=-1)
 
 
 def dilate_max(a: np.ndarray) -> np.ndarray:

@@ -153,8 +153,12 @@ class PassSum:
         smooth regions as they are (measured estimate / true relMSE over 5 seeds: 0.75-0.96 at 64 spp,
         0.89-1.01 at 256 spp on the four seed scenes; the median or trimmed mean of the replicates instead
         over-estimated the teapot's 1.4-2x, where much of a pixel's value comes from rare paths)."""
-        var = self.variance_of_mean
-        return float(np.mean(var / (box3(self.mean.astype(np.float64)) ** 2 + 0.01)))
+        return float(np.mean(self.relative_variance))
+
+    @property
+    def relative_variance(self) -> np.ndarray:
+        """(H, W, 3): each pixel's and channel's term of ``relmse_estimate``, Var[mean] / (R'^2 + 0.01)."""
+        return self.variance_of_mean / (box3(self.mean.astype(np.float64)) ** 2 + 0.01)
 
 
 def box3(img: np.ndarray) -> np.ndarray:
