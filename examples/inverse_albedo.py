@@ -139,13 +139,15 @@ def main() -> None:
     ap.add_argument("--target-spp", type=int, default=512)
     ap.add_argument("--mitsuba-variant", default="llvm_ad_rgb", help="'' to skip Mitsuba")
     ap.add_argument("--runs", type=int, default=5, help="optimisations from different seeds (medians reported)")
+    ap.add_argument("--only", choices=("pathtracer", "mitsuba"), help="run one of the two (to time whole processes)")
     ap.add_argument("--plot")
     ap.add_argument("--json")
     args = ap.parse_args()
-    runs: dict = {"pathtracer": []}
-    for k in range(args.runs):
-        runs["pathtracer"].append(ours(args.scene, args.size, args.iterations, args.spp, args.lr, args.target_spp, k))
-    if args.mitsuba_variant:
+    runs: dict = {}
+    if args.only != "mitsuba":
+        runs["pathtracer"] = [ours(args.scene, args.size, args.iterations, args.spp, args.lr, args.target_spp, k)
+                              for k in range(args.runs)]
+    if args.mitsuba_variant and args.only != "pathtracer":
         try:
             runs["mitsuba"] = [mitsuba(args.scene, args.size, args.iterations, args.spp, args.lr, args.target_spp,
                                        args.mitsuba_variant, k) for k in range(args.runs)]
