@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import warp as wp
 
+from kernels.adjoint import ADJ_CAP, adjoint_slot, inverse_reflectance, mat_entries, vec_keys
 from kernels.camera import camera_ray, thin_lens_ray
 from kernels.envmap import env_eval, env_pdf, env_sample
 from kernels.film import filter_offset, srgb_to_xyz
@@ -119,6 +120,7 @@ class PathSample:
     L: wp.vec3  # radiance along one camera path
     rays: wp.int64  # rays it traced (counted only in the instrumented variant)
     dL: wp.vec3  # gradient variants: dL/dtheta, the tangent 1 in each of theta's three channels
+    replay: bool  # backward variants: the path met too many parameters for one pass (kernels/adjoint.py)
 
 
 @wp.func
@@ -488,9 +490,10 @@ def make_render_kernel(features: Features):
     def Li(scene: SceneData, cam: CameraData, params: PassParams, col: int, row: int, sample_index: wp.uint32,
            seed: wp.uint32, replay: int, L_total: wp.vec3, adj: Adjoint) -> PathSample:
         """One camera path through pixel (col, row): sample ``sample_index`` of the sequence of ``seed``; the
-        radiance it carries. Backward variants, ``replay`` 1: the same path again, knowing its radiance
-        ``L_total``, adding each parameter's share of the loss gradient into ``adj`` (path replay: at a vertex of
-        material m, the radiance still to come, L_total - L, carries one factor of m's reflectance)."""
+        radiance it carries. Backward variants add each parameter's share of the loss gradient into ``adj``:
+        ``replay`` 0 in the same pass (kernels/adjoint.py), unless the path meets more parameters than that holds
+        (then ``out.replay``); ``replay`` 1: the same path again, knowing its radiance ``L_total`` (path replay: at
+        a vertex of material m, the radiance still to come, L_total - L, carries one factor of m's reflectance)."""
         key = wp.vec3ui(wp.uint32(row * cam.width + col), sample_index, seed)
 
         # ---------------- camera ray ----------------
@@ -525,9 +528,15 @@ def make_render_kernel(features: Features):
         eta_scale = float(1.0)  # product of the relative indices crossed (for roulette, as Mitsuba)
         if wp.static(BACKWARD):
             adj_tile = params.row_offset  # this tile's row of the adjoints
-            adj_w = wp.vec3(0.0)  # replay: dLoss/dpixel / spp
-            if replay != 0:
-                adj_w = adj.weight[row * cam.width + col]
+            adj_w = adj.weight[row * cam.width + col]  # dLoss/dpixel / spp
+            # one pass (replay 0): the path's entries (kernels/adjoint.py) and the radiance gathered at the last
+            # change of their A
+            ent_key = vec_keys()
+            ent_a = mat_entries()
+            ent_g = mat_entries()
+            n_ent = int(0)
+            overflow = bool(False)
+            L_mark = wp.vec3(0.0)
         # forward-mode derivatives (gradient variants): dL/dtheta and d beta/dtheta. Sampling is detached (the
         # directions, light samples and roulette's probability do not move with theta), so each path's value is a
         # polynomial in the reflectances and linear in the radiances, and these are its exact derivatives
@@ -593,9 +602,18 @@ def make_render_kernel(features: Features):
                                 if hit.light == params.grad_light:
                                     dL += beta
                             if wp.static(BACKWARD):  # (backward variants are made without MIS)
-                                if replay != 0 and hit.light < adj.num_lights:
-                                    wp.atomic_add(adj.radiance, adj_tile * adj.num_lights + hit.light,
-                                                  wp.vec3d(wp.cw_mul(adj_w, beta)))
+                                if hit.light < adj.num_lights:
+                                    if replay != 0:
+                                        wp.atomic_add(adj.radiance, adj_tile * adj.num_lights + hit.light,
+                                                      wp.vec3d(wp.cw_mul(adj_w, beta)))
+                                    else:
+                                        e = adjoint_slot(ent_key, n_ent, -1 - hit.light)
+                                        if e < ADJ_CAP:
+                                            ent_key[e] = -1 - hit.light
+                                            n_ent = wp.max(n_ent, e + 1)
+                                            ent_g[e] = ent_g[e] + beta
+                                        else:
+                                            overflow = True
 
                 if params.max_depth >= 0 and depth + 1 >= params.max_depth:
                     break
@@ -629,13 +647,22 @@ def make_render_kernel(features: Features):
                 if wp.static(BACKWARD):
                     # everything this path gathers from here on (next-event estimates here, and all after the
                     # bounce) carries this vertex's reflectance once: d/d rho of it is that radiance over rho
-                    if replay != 0 and (kind == MAT_DIFFUSE or is_mirror):
-                        L_rem = L_total - L
-                        share = wp.vec3(0.0)
-                        for c in range(3):
-                            if albedo[c] > 0.0:
-                                share[c] = adj_w[c] * L_rem[c] / albedo[c]
-                        wp.atomic_add(adj.rgb, adj_tile * adj.num_materials + mat, wp.vec3d(share))
+                    if kind == MAT_DIFFUSE or is_mirror:
+                        if replay != 0:
+                            share = wp.cw_mul(wp.cw_mul(adj_w, L_total - L), inverse_reflectance(albedo))
+                            wp.atomic_add(adj.rgb, adj_tile * adj.num_materials + mat, wp.vec3d(share))
+                        elif not overflow:
+                            gathered = L - L_mark  # under the entries' A so far
+                            for e in range(n_ent):
+                                ent_g[e] = ent_g[e] + wp.cw_mul(gathered, ent_a[e])
+                            L_mark = L
+                            e = adjoint_slot(ent_key, n_ent, mat)
+                            if e < ADJ_CAP:
+                                ent_key[e] = mat
+                                n_ent = wp.max(n_ent, e + 1)
+                                ent_a[e] = ent_a[e] + inverse_reflectance(albedo)
+                            else:
+                                overflow = True
 
                 wi = wp.vec3(0.0)
                 weight = albedo  # f cos / pdf of the sampled direction
@@ -713,10 +740,19 @@ def make_render_kernel(features: Features):
                                 if l == params.grad_light:
                                     dLd = Ll / float(params.light_samples)
                             if wp.static(BACKWARD):  # d/dLe_l of beta albedo Le_l Ll / (pi K)
+                                d_le = wp.cw_mul(wp.cw_mul(beta, albedo), Ll) * (
+                                    1.0 / (wp.pi * float(params.light_samples)))
                                 if replay != 0:
-                                    wp.atomic_add(adj.radiance, adj_tile * adj.num_lights + l, wp.vec3d(
-                                        wp.cw_mul(wp.cw_mul(adj_w, wp.cw_mul(beta, albedo)), Ll)
-                                        * (1.0 / (wp.pi * float(params.light_samples)))))
+                                    wp.atomic_add(adj.radiance, adj_tile * adj.num_lights + l,
+                                                  wp.vec3d(wp.cw_mul(adj_w, d_le)))
+                                elif wp.max(Ll[0], wp.max(Ll[1], Ll[2])) > 0.0:
+                                    e = adjoint_slot(ent_key, n_ent, -1 - l)
+                                    if e < ADJ_CAP:
+                                        ent_key[e] = -1 - l
+                                        n_ent = wp.max(n_ent, e + 1)
+                                        ent_g[e] = ent_g[e] + d_le
+                                    else:
+                                        overflow = True
                     if wp.static(OTHER_LIGHTS):
                         Ld += other_lights(scene, params, hit, ng, ns, mat, kind, albedo, d, key, dim, depth)
                         # the dims other_lights drew: K per sphere light, mesh light and environment
@@ -800,6 +836,18 @@ def make_render_kernel(features: Features):
         out.rays = rays
         if wp.static(GRAD):
             out.dL = dL
+        if wp.static(BACKWARD):
+            if replay == 0:
+                out.replay = overflow
+                if not overflow and wp.isfinite(L):  # (a dropped sample gives no gradient either)
+                    gathered = L - L_mark
+                    for e in range(n_ent):
+                        adj_g = wp.vec3d(wp.cw_mul(adj_w, ent_g[e] + wp.cw_mul(gathered, ent_a[e])))
+                        k_ent = ent_key[e]
+                        if k_ent >= 0:
+                            wp.atomic_add(adj.rgb, adj_tile * adj.num_materials + k_ent, adj_g)
+                        else:
+                            wp.atomic_add(adj.radiance, adj_tile * adj.num_lights - 1 - k_ent, adj_g)
         return out
 
     @wp.kernel(enable_backward=False, module="unique")
@@ -858,7 +906,7 @@ def make_render_kernel(features: Features):
             sample = Li(scene, cam, params, col, row, sample_index, seed, 0, wp.vec3(0.0), adj)
             finite = wp.isfinite(sample.L)
             if wp.static(BACKWARD):
-                if finite:  # path replay: the same path, with its radiance known
+                if finite and sample.replay:  # path replay: the same path, with its radiance known
                     Li(scene, cam, params, col, row, sample_index, seed, 1, sample.L, adj)
             if wp.static(GRAD):
                 finite = finite and wp.isfinite(sample.dL)

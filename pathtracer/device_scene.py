@@ -114,11 +114,29 @@ class Quad:
         return np.cross(self.half_v, self.normal) / det, np.cross(self.normal, self.half_u) / det
 
 
+_QUAD_MEMO: dict = {}  # content key -> mesh_quads' answer; an optimisation loop rebuilds the same box every iteration
+_QUAD_MEMO_SIZE = 4096
+
+
 def mesh_quads(m: TriangleMesh) -> list[Quad] | None:
     """The parallelograms a rectangle or cube mesh is made of (faces 2k and 2k+1 share a diagonal), or None when the
     mesh is not one, or its triangles do not pair into non-degenerate parallelograms (then it stays triangles)."""
     if m.shape not in QUAD_SHAPES or m.normals is not None or len(m.faces) % 2 or not len(m.faces):
         return None
+    v = np.asarray(m.vertices, dtype=np.float64)
+    f = np.asarray(m.faces, dtype=np.int64)
+    uv = None if m.uvs is None else np.asarray(m.uvs, dtype=np.float64)
+    key = (v.shape, v.tobytes(), f.shape, f.tobytes(), None if uv is None else (uv.shape, uv.tobytes()), m.material,
+           m.light)
+    if key not in _QUAD_MEMO:
+        if len(_QUAD_MEMO) >= _QUAD_MEMO_SIZE:
+            _QUAD_MEMO.clear()
+        _QUAD_MEMO[key] = _mesh_quads(m)
+    quads = _QUAD_MEMO[key]
+    return None if quads is None else [dataclasses.replace(q) for q in quads]
+
+
+def _mesh_quads(m: TriangleMesh) -> list[Quad] | None:
     quads = []
     v = m.vertices
     for f0, f1 in zip(m.faces[0::2], m.faces[1::2]):
@@ -280,13 +298,16 @@ class DeviceScene:
         d.num_spheres = len(scene.spheres)
 
         self.quads = quads
-        duals = [q.duals() for q in quads]
-        d.quad_center = _vec3d([q.center for q in quads], device)
-        d.quad_normal = _vec3d([q.normal for q in quads], device)
-        d.quad_half_u = _vec3d([q.half_u for q in quads], device)
-        d.quad_half_v = _vec3d([q.half_v for q in quads], device)
-        d.quad_ustar = _vec3d([u for u, _ in duals], device)
-        d.quad_vstar = _vec3d([v for _, v in duals], device)
+        center, normal, half_u, half_v = (np.array([getattr(q, k) for q in quads], dtype=np.float64).reshape(-1, 3)
+                                          for k in ("center", "normal", "half_u", "half_v"))
+        # Quad.duals for all quads at once (one call per quad cost more than the rest of the upload)
+        det = np.einsum("ij,ij->i", normal, np.cross(half_u, half_v))[:, None]
+        d.quad_center = _vec3d(center, device)
+        d.quad_normal = _vec3d(normal, device)
+        d.quad_half_u = _vec3d(half_u, device)
+        d.quad_half_v = _vec3d(half_v, device)
+        d.quad_ustar = _vec3d(np.cross(half_v, normal) / det, device)
+        d.quad_vstar = _vec3d(np.cross(normal, half_u) / det, device)
         d.quad_scale = _arr([q.scale for q in quads], wp.float32, device)
         d.quad_material = _arr([q.material for q in quads], wp.int32, device)
         d.quad_light = _arr([q.light for q in quads], wp.int32, device)

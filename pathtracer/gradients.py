@@ -144,8 +144,9 @@ def render_backward(scene, keys, grad_image, spp: int | None = None, seed: int |
     """key -> (3,) numpy: the sum over pixels of ``grad_image`` times d image / d theta, per channel of theta (the
     adjoint of ``render_forward`` for a loss whose gradient with respect to the image is ``grad_image``).
 
-    ``method`` "replay": path replay backpropagation, every parameter's adjoint from one render that traces each
-    path twice (kernels/integrator.py: the backward variant; 1.8x a render, examples/bench_gradients.py);
+    ``method`` "replay": every parameter's adjoint from one render (kernels/integrator.py: the backward variant):
+    a path gathers its adjoints in registers as it is traced (kernels/adjoint.py), and only a path that meets more
+    than ``ADJ_CAP`` parameters is traced again, as path replay backpropagation does (examples/bench_gradients.py);
     "forward": one forward-mode render per key (1x a render per key; the same derivatives, summed in another
     order); "auto" (default): forward for one key, replay for more."""
     keys = [keys] if isinstance(keys, str) else list(keys)

@@ -240,3 +240,46 @@ def test_a_warp_tape_differentiates_a_loss_kernel_through_the_render():
         np.testing.assert_allclose(arr.grad.numpy()[0], expected[key], rtol=1e-5)
     # the target is brighter in red (a redder wall, a stronger light): both gradients say to raise red
     assert rho.grad.numpy()[0, 0] < 0 and le.grad.numpy()[0, 0] < 0
+
+
+def tiled_box(n: int = 2, depth: int = 14) -> "pathtracer.scene.Scene":
+    """A closed box whose six walls are n x n tiles, each of its own diffuse colour, lit by a small light under
+    the ceiling: paths bounce ``depth`` - 1 times and meet more materials than one pass's registers hold
+    (kernels/adjoint.py: ADJ_CAP), so path replay's fallback runs next to the one-pass paths."""
+    from pathtracer.transform import Transform as T
+
+    rng = np.random.default_rng(3)
+    d = {"type": "scene", "integrator": {"type": "path", "max_depth": depth, "rr_depth": 100},
+         "sensor": {"type": "perspective", "fov": 80,
+                    "to_world": T().look_at(origin=[0, 0, 0.9], target=[0, 0, -1], up=[0, 1, 0]),
+                    "film": {"type": "hdrfilm", "width": 16, "height": 12, "rfilter": {"type": "box"}}},
+         "light": {"type": "rectangle", "to_world": T().translate([0, 0.999, 0]) @ T().rotate([1, 0, 0], 90)
+                   @ T().scale(0.2), "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [20, 20, 20]}}}}
+    walls = [T().rotate([1, 0, 0], -90) , T().rotate([1, 0, 0], 90), T(), T().rotate([0, 1, 0], 180),
+             T().rotate([0, 1, 0], 90), T().rotate([0, 1, 0], -90)]  # floor, ceiling, back, front, left, right
+    for w, rot in enumerate(walls):
+        for i in range(n):
+            for j in range(n):
+                tile = (rot @ T().translate([(2 * i + 1) / n - 1, (2 * j + 1) / n - 1, -1]) @ T().scale(1 / n))
+                d[f"tile_{w}_{i}_{j}"] = {"type": "rectangle", "to_world": tile, "bsdf": {
+                    "type": "diffuse", "reflectance": {"type": "rgb", "value": (0.5 + 0.4 * rng.random(3)).tolist()}}}
+    return pathtracer.load_dict(d)
+
+
+def test_one_pass_adjoints_and_the_replay_of_paths_that_overflow_them_agree_with_forward_mode():
+    """Most paths here meet more than ADJ_CAP materials (13 bounces among 24 tiles): they are replayed, the rest
+    gather their adjoints in one pass; both must give forward mode's derivatives, summed in another order."""
+    from kernels.adjoint import ADJ_CAP
+
+    scene = tiled_box()
+    assert len(scene.materials) > 2 * ADJ_CAP
+    rng = np.random.default_rng(1)
+    w = rng.standard_normal((scene.height, scene.width, 3))
+    keys = list(pathtracer.traverse(scene))
+    picked = [keys[0], keys[5], keys[17], "light.emitter.radiance.value"]
+    back = pathtracer.render_backward(scene, picked, w, spp=8, seed=2, method="replay")
+    for key in picked:
+        _, g = pathtracer.render_forward(scene, key, spp=8, seed=2)
+        expected = np.einsum("hwc,hwc->c", w, g.astype(np.float64))
+        assert np.abs(expected).max() > 0
+        np.testing.assert_allclose(back[key], expected, rtol=1e-5, atol=1e-6 * np.abs(expected).max())
