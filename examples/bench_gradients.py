@@ -3,9 +3,10 @@
     python examples/bench_gradients.py --json docs/bench_gradients.json
 
 cornell_box at 128x128, 64 spp, medians of 5 in one process, kernels cached: the plain render (``render``), the
-forward-mode derivative image (``render_forward``: the image and its derivative), and ``render_backward`` by
-path replay (one render, each path traced twice, for one parameter or all of them) and by forward mode (one
-render per parameter).
+forward-mode derivative image (``render_forward``: the image and its derivative), ``render_backward`` by
+path replay (one render, the adjoints gathered in one pass, for one parameter or all of them) and by forward mode
+(one render per parameter), and ``render_loss_gradient`` (the image and a loss gradient from two independent
+halves of the spp: forward mode for one key, 1.5 renders of path replay for all).
 """
 
 from __future__ import annotations
@@ -39,9 +40,14 @@ def main() -> None:
         "render": lambda: pathtracer.render(scene, spp=a.spp, seed=1, progress=False, light_tracing=False),
         "render_forward": lambda: pathtracer.render_forward(scene, keys[0], spp=a.spp, seed=1),
         "render_backward (path replay), 1 key": lambda: pathtracer.render_backward(scene, keys[:1], w, spp=a.spp,
-                                                                                  seed=1),
+                                                                                  seed=1, method="replay"),
         "render_backward (path replay), all keys": lambda: pathtracer.render_backward(scene, all_keys, w,
-                                                                                     spp=a.spp, seed=1),
+                                                                                     spp=a.spp, seed=1,
+                                                                                     method="replay"),
+        "render_loss_gradient (two halves), 1 key": lambda: pathtracer.render_loss_gradient(
+            scene, keys[0], lambda img: w, spp=a.spp, seed=1),
+        "render_loss_gradient (two halves), all keys": lambda: pathtracer.render_loss_gradient(
+            scene, all_keys, lambda img: w, spp=a.spp, seed=1),
         "render_backward (forward), 2 keys": lambda: pathtracer.render_backward(scene, keys, w, spp=a.spp, seed=1,
                                                                                method="forward"),
     }

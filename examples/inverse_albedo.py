@@ -2,9 +2,11 @@
 
 Mitsuba 3's tutorial ("Gradient-based optimization"): Adam with lr 0.05, 50 iterations of 4 spp at 128x128,
 starting from (0.01, 0.2, 0.9); loss = mean squared error against the target image; it reaches a squared
-parameter error of about 0.0015. The same here with ``pathtracer.render`` for the image and ``render_backward`` for the loss
-gradient (from independent samples, as Mitsuba does), and, when Mitsuba is installed (``llvm_ad_rgb``, or ``--mitsuba-variant``), Mitsuba's own run on
-the same scene file side by side, timed the same way.
+parameter error of about 0.0015. The same here with ``pathtracer.render_loss_gradient``: the image and the loss
+gradient from the iteration's 4 spp, split into two independent halves (Mitsuba renders the image and, with another
+seed, the gradient: 8 spp). When Mitsuba is installed (``llvm_ad_rgb``, or ``--mitsuba-variant``), Mitsuba's own run
+on the same scene file side by side, timed the same way: the loop alone (after the target render) and the target
+render. ``--only`` runs one of the two, for timing whole processes.
 
     python examples/inverse_albedo.py --plot docs/figures/inverse_albedo.png --json docs/inverse_albedo.json
 """
@@ -40,35 +42,46 @@ class Adam:
         return x - self.lr * m_hat / (np.sqrt(v_hat) + 1e-8)
 
 
-def ours(scene_path: str, size: int, iterations: int, spp: int, lr: float, target_spp: int, run: int = 0) -> dict:
+def ours(scene_path: str, size: int, iterations: int, spp: int, lr: float, target_spp: int, run: int = 0,
+         target_error: float | None = None) -> dict:
     import pathtracer
 
+    t_target = time.perf_counter()
     scene = pathtracer.load_file(scene_path, width=size, height=size)
     params = pathtracer.traverse(scene)
     truth = params[KEY].copy()
-    target = pathtracer.render(scene, spp=target_spp, seed=10**6, progress=False, light_tracing=False)
+    # the target: target_spp passes of the defaults, or (target_error) as many as reach that estimated relMSE
+    stats: dict = {}
+    target = pathtracer.render(scene, spp=None if target_error else target_spp, seed=10**6, progress=False,
+                               light_tracing=False, target_error=target_error, stats=stats)
+    target_seconds = time.perf_counter() - t_target
     x = np.array(START)
     opt = Adam(lr, x)
     history = []
-    pathtracer.render_forward(scene, KEY, spp=1, seed=0)  # compile (cached) before timing
-    pathtracer.render(scene, spp=1, seed=0, progress=False, light_tracing=False)
+
+    def loss_grad(img):
+        return 2.0 * (img.astype(np.float64) - target) / img.size
+
+    pathtracer.render_loss_gradient(scene, KEY, loss_grad, spp=2, seed=0)  # compile (cached) before timing
     t0 = time.perf_counter()
     for it in range(iterations):
         params[KEY] = x
-        # the image and its gradient from independent samples, as Mitsuba's render (seed_grad): from the same ones
-        # the loss gradient is biased (E[img grad] is not E[img] E[grad]); measured: the red wall converged to
-        # 0.57 instead of 0.63, a squared parameter error of 4e-3 against 1.4e-3
-        img = pathtracer.render(scene, spp=spp, seed=2 * (1000 * run + it), progress=False, light_tracing=False)
+        # the image and its gradient must come from independent samples (from the same ones the loss gradient is
+        # biased: E[img grad] is not E[img] E[grad]; measured: the red wall converged to 0.57 instead of 0.63).
+        # Mitsuba renders twice for that (seed_grad); render_loss_gradient splits the spp samples into two
+        # independent halves, each half's loss gradient weighing the other's derivatives: one forward-mode render
+        img, g = pathtracer.render_loss_gradient(scene, KEY, loss_grad, spp=spp, seed=1000 * run + it)
+        g = g[KEY]
         diff = img.astype(np.float64) - target
         loss = float(np.mean(diff * diff))
-        g = pathtracer.render_backward(scene, [KEY], 2.0 * diff / diff.size, spp=spp,
-                                       seed=2 * (1000 * run + it) + 1)[KEY]
         x = np.clip(opt.step(x, g), 0.0, 1.0)
         history.append({"loss": loss, "param": x.tolist(), "param_error": float(np.sum((x - truth) ** 2))})
     seconds = time.perf_counter() - t0
     params[KEY] = truth
     return {"seconds": seconds, "final_param": x.tolist(), "truth": truth.tolist(),
-            "final_param_error": history[-1]["param_error"], "history": history}
+            "final_param_error": history[-1]["param_error"], "history": history,
+            "target_seconds": target_seconds, "target_spp": stats.get("spp"),
+            "target_relmse_estimate": stats.get("relmse_estimate")}
 
 
 def mitsuba(scene_path: str, size: int, iterations: int, spp: int, lr: float, target_spp: int, variant: str,
@@ -85,7 +98,11 @@ def mitsuba(scene_path: str, size: int, iterations: int, spp: int, lr: float, ta
     integrator = mi.load_dict({"type": "prb", "max_depth": ours_scene.integrator.max_depth,
                                "rr_depth": ours_scene.integrator.rr_depth})
     truth = np.array(params[KEY]).reshape(-1)
+    t_target = time.perf_counter()
     target = mi.render(scene, spp=target_spp, seed=10**6)
+    dr.eval(target)  # (lazy: unevaluated, the target would be rendered inside the first timed iteration)
+    dr.sync_thread()
+    target_seconds = time.perf_counter() - t_target
     opt = mi.ad.Adam(lr=lr)
     opt[KEY] = mi.Color3f(*START)
     params.update(opt)
@@ -104,7 +121,7 @@ def mitsuba(scene_path: str, size: int, iterations: int, spp: int, lr: float, ta
     seconds = time.perf_counter() - t0
     return {"seconds": seconds, "variant": variant, "final_param": history[-1]["param"],
             "truth": truth.reshape(-1).tolist(), "final_param_error": history[-1]["param_error"],
-            "history": history}
+            "history": history, "target_seconds": target_seconds, "target_spp": target_spp}
 
 
 def plot(results: dict, path: str) -> None:
@@ -137,6 +154,8 @@ def main() -> None:
     ap.add_argument("--spp", type=int, default=4)
     ap.add_argument("--lr", type=float, default=0.05)
     ap.add_argument("--target-spp", type=int, default=512)
+    ap.add_argument("--target-error", type=float, help="ours: render the target to this estimated relMSE instead "
+                    "of --target-spp passes (Mitsuba's stays at --target-spp)")
     ap.add_argument("--mitsuba-variant", default="llvm_ad_rgb", help="'' to skip Mitsuba")
     ap.add_argument("--runs", type=int, default=5, help="optimisations from different seeds (medians reported)")
     ap.add_argument("--only", choices=("pathtracer", "mitsuba"), help="run one of the two (to time whole processes)")
@@ -145,8 +164,8 @@ def main() -> None:
     args = ap.parse_args()
     runs: dict = {}
     if args.only != "mitsuba":
-        runs["pathtracer"] = [ours(args.scene, args.size, args.iterations, args.spp, args.lr, args.target_spp, k)
-                              for k in range(args.runs)]
+        runs["pathtracer"] = [ours(args.scene, args.size, args.iterations, args.spp, args.lr, args.target_spp, k,
+                                   args.target_error) for k in range(args.runs)]
     if args.mitsuba_variant and args.only != "pathtracer":
         try:
             runs["mitsuba"] = [mitsuba(args.scene, args.size, args.iterations, args.spp, args.lr, args.target_spp,
@@ -157,11 +176,15 @@ def main() -> None:
     for name, rs in runs.items():
         errs = [r["final_param_error"] for r in rs]
         secs = [r["seconds"] for r in rs]
+        tsecs = [r["target_seconds"] for r in rs]
         summary[name] = {"median_final_param_error": float(np.median(errs)), "final_param_errors": errs,
                          "median_seconds": float(np.median(secs)), "seconds": secs,
+                         "median_target_seconds": float(np.median(tsecs)), "target_seconds": tsecs,
+                         "target_spp": [r["target_spp"] for r in rs],
                          "final_params": [r["final_param"] for r in rs]}
         print(f"{name}: {args.runs} runs of {args.iterations} iterations at {args.spp} spp, {args.size}x{args.size}: "
-              f"median {np.median(secs):.2f} s, squared parameter error median {np.median(errs):.2e} "
+              f"loop median {np.median(secs):.2f} s (target render {np.median(tsecs):.2f} s, "
+              f"{rs[0]['target_spp']} spp), squared parameter error median {np.median(errs):.2e} "
               f"(runs {', '.join(f'{e:.1e}' for e in errs)})", flush=True)
     results = {name: rs[0] for name, rs in runs.items()}  # the first run of each is plotted
     if args.plot:

@@ -7,7 +7,7 @@
 """
 
 from pathtracer.errors import ImageIOError, PathtracerError, RenderError, SceneError
-from pathtracer.gradients import render_backward, render_forward, traverse
+from pathtracer.gradients import render_backward, render_forward, render_loss_gradient, traverse
 from pathtracer.imageio import read_image, read_layers, write_image
 from pathtracer.loader import load_dict, load_file
 from pathtracer.render import PassSum, Renderer, render
@@ -18,6 +18,7 @@ __version__ = "0.1.0"
 __all__ = [
     "Camera", "ImageIOError", "Integrator", "Material", "PassSum", "PathtracerError", "RectLight",
     "RenderError", "Renderer", "Scene", "SceneError", "Sphere", "TriangleMesh", "load_dict", "load_file",
-    "read_image", "read_layers", "render", "render_backward", "render_forward", "traverse", "write_image",
+    "read_image", "read_layers", "render", "render_backward", "render_forward", "render_loss_gradient", "traverse",
+    "write_image",
 ]
 

@@ -5,10 +5,14 @@ Parameters are named as Mitsuba's ``mi.traverse`` names them: ``red.reflectance.
 ``light.emitter.radiance.value`` for the area emitter of a rectangle of id ``light``.
 
 Forward mode carries the derivatives along each path beside its radiance (kernels/integrator.py, the
-``gradient`` variant): d beta and dL, exact for the path as sampled. Reverse mode is path replay
-backpropagation (Vicini et al. 2021; the ``backward`` variant): each path is traced, then traced again with its
-radiance known, and at every vertex the radiance still to come, over the vertex's reflectance, is added into
-that material's adjoint (at every emitter hit and light sample, the throughput into that light's). Sampling is detached, as in Mitsuba's
+``gradient`` variant): d beta and dL, exact for the path as sampled. Reverse mode (the ``backward`` variant)
+gathers every parameter's adjoint in one pass: each path keeps, per material it meets, the sum of 1 / rho over
+its vertices there and the radiance gathered under it (kernels/adjoint.py), and adds its share once at its end;
+a path that meets more parameters than those registers hold is traced again with its radiance known, as path
+replay backpropagation does (Vicini et al. 2021: at every vertex the radiance still to come, over the vertex's
+reflectance, goes into that material's adjoint; at every emitter hit and light sample, the throughput into that
+light's). ``render_loss_gradient`` gives an image and a loss gradient from one set of samples split into two
+independent halves, each weighing the other's derivatives. Sampling is detached, as in Mitsuba's
 ``prb``: the directions, light samples and roulette's survival probability do not move with the parameter, so
 the estimate of every path is a polynomial in the reflectances and linear in the radiances, and its derivative
 is taken exactly (tests/test_gradients.py checks it against central differences with the same random numbers).
@@ -108,6 +112,16 @@ def traverse(scene) -> SceneParameters:
     return SceneParameters(scene)
 
 
+def _with_sampler(opts: dict, spp: int) -> dict:
+    """``opts`` with the sampler a render of ``spp`` passes gets by default where none is asked for (as ``render``:
+    pathtracer.render.default_sampler), so that a gradient and a render of the same seed and spp match."""
+    from pathtracer.render import default_sampler
+
+    if opts.get("sampler") is None:
+        opts = {**opts, "sampler": default_sampler(spp, opts.get("replicates"))}
+    return opts
+
+
 def _renderer(scene, opts: dict, backward: bool = False):
     """A forward-mode (``gradient``) or path-replay (``backward``) renderer of ``scene`` with ``opts``."""
     from pathtracer.render import Renderer
@@ -118,11 +132,16 @@ def _renderer(scene, opts: dict, backward: bool = False):
     return Renderer(scene, gradient=not backward, backward=backward, light_tracing=False, **opts)
 
 
-def _forward(r, key: str, params: dict, spp: int, seed: int):
+def _other_seed(seed: int) -> int:
+    """A second seed, for samples independent of ``seed``'s (a fixed odd-multiplier hash: any other value would do)."""
+    return (seed * 0x9E3779B1 + 0x632BE5AB) % 2**32
+
+
+def _forward(r, key: str, params: dict, spp: int, seed: int, first_pass: int = 0):
     p = _lookup(params, key)
     r.grad_material = p.index if p.kind == "material" else -1
     r.grad_light = p.index if p.kind == "light" else -1
-    sums = r.render_passes(seed=seed, first_pass=0, count=spp)
+    sums = r.render_passes(seed=seed, first_pass=first_pass, count=spp)
     grad = (sums.grad_sum / max(sums.passes, 1)).astype(np.float32)
     return sums.mean, grad
 
@@ -132,6 +151,7 @@ def render_forward(scene, key: str, spp: int | None = None, seed: int | None = N
     three channels (as Mitsuba's ``dr.forward``); float32 (H, W, 3) each. ``opts``: as ``Renderer``'s."""
     spp = scene.spp if spp is None else spp
     seed = scene.sampler_seed if seed is None else seed
+    opts = _with_sampler(opts, spp)
     r = _renderer(scene, opts)
     try:
         return _forward(r, key, parameters(scene), spp, seed)
@@ -162,6 +182,7 @@ def render_backward(scene, keys, grad_image, spp: int | None = None, seed: int |
     params = parameters(scene)
     for key in keys:
         _lookup(params, key)
+    opts = _with_sampler(opts, spp)
     if method == "forward":
         r = _renderer(scene, opts)
         try:
@@ -180,6 +201,80 @@ def render_backward(scene, keys, grad_image, spp: int | None = None, seed: int |
     finally:
         r.close()
     return {key: (rgb if params[key].kind == "material" else rad)[params[key].index].copy() for key in keys}
+
+
+def render_loss_gradient(scene, keys, loss_grad, spp: int | None = None, seed: int | None = None,
+                         method: str = "auto", **opts) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """(image, key -> (3,) numpy): a render and the gradient of a loss of it, from one set of ``spp`` samples.
+
+    ``loss_grad(image)`` returns dLoss/dimage, (H, W, 3); for the mean squared error against ``target``,
+    ``lambda img: 2 * (img - target) / img.size``. The loss gradient needs the image and its derivative from
+    independent samples (from the same ones it is biased: E[img grad] is not E[img] E[grad]); Mitsuba renders
+    twice for that (``seed_grad``). Here the samples are split into two independent halves A and B, and each half's
+    ``loss_grad`` weighs the other half's derivatives: 0.5 (sum w(A) dB + sum w(B) dA). For a loss quadratic in
+    the image, such as the mean squared error, that is unbiased; the image is the mean of both halves. ``method``:
+    "forward" (one forward-mode render per key), "replay" (one-pass adjoints: 1.5 renders for every key at once),
+    "auto" (forward for one key). ``opts``: as ``Renderer``'s.
+    """
+    keys = [keys] if isinstance(keys, str) else list(keys)
+    spp = scene.spp if spp is None else spp
+    seed = scene.sampler_seed if seed is None else seed
+    if not (isinstance(spp, (int, np.integer)) and spp >= 2):
+        raise RenderError(f"spp must be an integer >= 2 (two halves), got {spp!r}")
+    if method not in ("auto", "replay", "forward"):
+        raise RenderError(f"unknown backward method {method!r} (auto, replay or forward)")
+    if method == "auto":
+        method = "forward" if len(keys) == 1 else "replay"
+    params = parameters(scene)
+    for key in keys:
+        _lookup(params, key)
+    # (seed, passes): two seeds, two independent sample sets (with Sobol' too: disjoint passes of one seed are not)
+    halves = ((seed, spp // 2), (_other_seed(seed), spp - spp // 2))
+
+    def weight(img: np.ndarray) -> np.ndarray:
+        w = np.asarray(loss_grad(img), dtype=np.float64)
+        if w.shape != (scene.height, scene.width, 3):
+            raise RenderError(f"loss_grad must return ({scene.height}, {scene.width}, 3), got {w.shape}")
+        return w
+
+    opts = _with_sampler(opts, spp // 2)
+    if method == "forward":
+        r = _renderer(scene, opts)
+        try:
+            imgs, derivs = [], {key: [] for key in keys}
+            for i, key in enumerate(keys):
+                for half_seed, n in halves:
+                    img, g = _forward(r, key, params, n, half_seed)
+                    if i == 0:
+                        imgs.append(img)
+                    derivs[key].append(g.astype(np.float64))
+        finally:
+            r.close()
+        w = [weight(img) for img in imgs]
+        grads = {key: 0.5 * (np.einsum("hwc,hwc->c", w[0], d[1]) + np.einsum("hwc,hwc->c", w[1], d[0]))
+                 for key, d in derivs.items()}
+    else:
+        r = _renderer(scene, opts, backward=True)
+        try:
+            (sa, na), (sb, nb) = halves
+            r.set_adjoint(np.zeros((scene.height, scene.width, 3)))
+            img_a = r.render_passes(seed=sa, count=na).mean
+            w_a = weight(img_a)
+            r.set_adjoint(w_a / nb)  # B's paths, weighed by A's loss gradient
+            img_b = r.render_passes(seed=sb, count=nb).mean
+            rgb, rad = r.adjoint()
+            w_b = weight(img_b)
+            r.set_adjoint(w_b / na)  # A's paths again, weighed by B's
+            r.render_passes(seed=sa, count=na)
+            rgb2, rad2 = r.adjoint()
+        finally:
+            r.close()
+        imgs = [img_a, img_b]
+        grads = {key: 0.5 * ((rgb + rgb2) if params[key].kind == "material" else (rad + rad2))[params[key].index]
+                 for key in keys}
+    (_, na), (_, nb) = halves
+    image = ((na * imgs[0].astype(np.float64) + nb * imgs[1]) / spp).astype(np.float32)
+    return image, grads
 
 
 # ---------------------------------------------------------------- the Warp-native form: wp.Tape
@@ -211,7 +306,7 @@ def render_wp(scene, params: dict, spp: int | None = None, seed: int | None = No
 
     spp = scene.spp if spp is None else spp
     seed = scene.sampler_seed if seed is None else seed
-    seed_grad = (seed * 0x9E3779B1 + 0x632BE5AB) % 2**32 if seed_grad is None else seed_grad
+    seed_grad = _other_seed(seed) if seed_grad is None else seed_grad
     values = traverse(scene)
     for key, arr in params.items():
         values[key] = np.asarray(arr.numpy(), dtype=np.float64).reshape(-1)[:3]

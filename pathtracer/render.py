@@ -38,6 +38,14 @@ DEFAULT_LIGHT_SAMPLES = 1
 DEFAULT_RR = "throughput"
 DEFAULT_SAMPLER = "sobol"  # 1.1-3.2x more efficient than independent on every seed scene (docs/performance.md)
 DEFAULT_REPLICATES = 4  # independent Sobol' scrambles a render is split into, for its error estimate
+
+
+def default_sampler(spp: int, replicates: int | None = None) -> str:
+    """The sampler a render of ``spp`` passes gets when none is asked for: Sobol', unless some replicate would get
+    a single point (fewer than two per replicate): a scramble's first point is a uniform random one, so Sobol'
+    then only costs its extra time (about 20% a sample) and stratifies nothing."""
+    reps = DEFAULT_REPLICATES if replicates is None else replicates
+    return DEFAULT_SAMPLER if spp >= 2 * reps else "independent"
 DEFAULT_LIGHT_SAMPLING = "area"
 DEFAULT_LIGHT_TRACING = False
 DEFAULT_TRIANGLES = "wide"  # watertight, and faster than "warp" on the CPU (examples/bench_rays.py)
@@ -514,7 +522,9 @@ def render(
     light_samples: next-event samples per light (default 1; the seed used 8).
     rr: "throughput" (Mitsuba's rule from the scene's rr_depth, default) or "seed" (stop with probability 0.2
     after the first bounce). threads: CPU worker threads (default: all cores); the image does not depend on it. view: "radiance", "direction" or "normal".
-    sampler: "independent" (default) or "sobol" (Owen-scrambled Sobol' points, stratified across passes).
+    sampler: "sobol" (default: Owen-scrambled Sobol' points, stratified across passes, in ``replicates``
+    independent scrambles) or "independent"; the default is independent when spp is below twice the replicates
+    (``default_sampler``), and for a render with a budget or a checkpoint always Sobol'.
     light_sampling: "area" (default) or "solid_angle" (rectangular lights sampled uniformly in solid angle).
     light_tracing: caustics seen directly from light paths (see ``Renderer``): True, False, or None / "auto"
     (default): where the scene allows it, a pilot of 1/32 of the passes with and without decides, and counts
@@ -571,6 +581,8 @@ def render(
     pilot_spp = min(spp, 256) if budgeted else spp  # a pilot sized for a time or error budget, not for its bound
     seed = scene.sampler_seed if seed is None else seed
     seed = _check_int("seed", seed, 0, UINT32_LIMIT)
+    if sampler is None and not budgeted and checkpoint is None and isinstance(replicates, (int, type(None))):
+        sampler = default_sampler(spp, replicates)
     auto = light_tracing is None or light_tracing == "auto"
     opts = dict(device=device, max_depth=max_depth, light_samples=light_samples, rr=rr, view=view, threads=threads,
                 sampler=sampler, light_sampling=light_sampling, triangles=triangles, replicates=replicates)
