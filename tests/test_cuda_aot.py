@@ -3,7 +3,8 @@ Warp's bundled NVRTC (``wp.compile_aot_module``), so CUDA-only code generation e
 
 The variants: each seed scene with the defaults (path tracing with Sobol', and with light tracing where "auto" pilots
 it, plus the light tracer's own kernels), the seed's figures' options (debug views, the seed's roulette rule,
-independent sampling) and the other triangle backend on the teapot. Cubins are kept under the Warp cache, so a
+independent sampling), the other triangle backend on the teapot, and the forward-mode and one-pass adjoint
+(backward) variants of the two Cornell boxes. Cubins are kept under the Warp cache, so a
 second run only checks they exist.
 """
 
@@ -58,6 +59,13 @@ def _variants():
                     continue
                 seen.add(fv)
                 out.append(pytest.param(fv, id=f"{path.stem}-{name}" + ("-light_tracing" if lt else "")))
+        if path.stem in ("cornell_box", "cornell_box_mirror"):  # the gradient variants (pathtracer/gradients.py)
+            for mode in ("gradient", "backward"):
+                for sampler in ("sobol", "independent"):
+                    fv = dataclasses.replace(DeviceScene.features(scene, sampler=sampler), **{mode: True})
+                    if fv not in seen:
+                        seen.add(fv)
+                        out.append(pytest.param(fv, id=f"{path.stem}-{mode}-{sampler}"))
     return out
 
 
