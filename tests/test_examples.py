@@ -113,7 +113,8 @@ def test_bench_gradients_tiny(tmp_path):
     run_example("examples/bench_gradients.py", "--size", "8", "--spp", "2", "--reps", "1", "--json", str(out))
     assert set(json.loads(out.read_text())["median_seconds"]) == {
         "render", "render_forward", "render_backward (path replay), 1 key", "render_backward (path replay), all keys",
-        "render_backward (forward), 2 keys"}
+        "render_backward (forward), 2 keys", "render_loss_gradient (two halves), 1 key",
+        "render_loss_gradient (two halves), all keys"}
 
 
 def test_torch_albedo_tiny():
