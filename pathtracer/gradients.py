@@ -137,11 +137,31 @@ def _other_seed(seed: int) -> int:
     return (seed * 0x9E3779B1 + 0x632BE5AB) % 2**32
 
 
-def _forward(r, key: str, params: dict, spp: int, seed: int, first_pass: int = 0):
+def _keys_and_method(scene, keys, method: str) -> tuple[list[str], str, dict]:
+    """The keys as a list, the method with "auto" decided (forward for one key, replay for more), and the scene's
+    parameters, every key checked against them (one-line errors)."""
+    keys = [keys] if isinstance(keys, str) else list(keys)
+    if method not in ("auto", "replay", "forward"):
+        raise RenderError(f"unknown backward method {method!r} (auto, replay or forward)")
+    if method == "auto":
+        method = "forward" if len(keys) == 1 else "replay"
+    params = parameters(scene)
+    for key in keys:
+        _lookup(params, key)
+    return keys, method, params
+
+
+def _adjoint_of(params: dict, key: str, rgb: np.ndarray, rad: np.ndarray) -> np.ndarray:
+    """``key``'s row of a backward renderer's adjoints (materials ``rgb``, lights ``rad``)."""
+    p = params[key]
+    return (rgb if p.kind == "material" else rad)[p.index].copy()
+
+
+def _forward(r, key: str, params: dict, spp: int, seed: int):
     p = _lookup(params, key)
     r.grad_material = p.index if p.kind == "material" else -1
     r.grad_light = p.index if p.kind == "light" else -1
-    sums = r.render_passes(seed=seed, first_pass=first_pass, count=spp)
+    sums = r.render_passes(seed=seed, first_pass=0, count=spp)
     grad = (sums.grad_sum / max(sums.passes, 1)).astype(np.float32)
     return sums.mean, grad
 
@@ -169,19 +189,12 @@ def render_backward(scene, keys, grad_image, spp: int | None = None, seed: int |
     than ``ADJ_CAP`` parameters is traced again, as path replay backpropagation does (examples/bench_gradients.py);
     "forward": one forward-mode render per key (1x a render per key; the same derivatives, summed in another
     order); "auto" (default): forward for one key, replay for more."""
-    keys = [keys] if isinstance(keys, str) else list(keys)
     spp = scene.spp if spp is None else spp
     seed = scene.sampler_seed if seed is None else seed
     w = np.asarray(grad_image, dtype=np.float64)
     if w.shape != (scene.height, scene.width, 3):
         raise RenderError(f"grad_image must be ({scene.height}, {scene.width}, 3), got {w.shape}")
-    if method not in ("auto", "replay", "forward"):
-        raise RenderError(f"unknown backward method {method!r} (auto, replay or forward)")
-    if method == "auto":
-        method = "forward" if len(keys) == 1 else "replay"
-    params = parameters(scene)
-    for key in keys:
-        _lookup(params, key)
+    keys, method, params = _keys_and_method(scene, keys, method)
     opts = _with_sampler(opts, spp)
     if method == "forward":
         r = _renderer(scene, opts)
@@ -200,7 +213,7 @@ def render_backward(scene, keys, grad_image, spp: int | None = None, seed: int |
         rgb, rad = r.adjoint()
     finally:
         r.close()
-    return {key: (rgb if params[key].kind == "material" else rad)[params[key].index].copy() for key in keys}
+    return {key: _adjoint_of(params, key, rgb, rad) for key in keys}
 
 
 def render_loss_gradient(scene, keys, loss_grad, spp: int | None = None, seed: int | None = None,
@@ -216,18 +229,11 @@ def render_loss_gradient(scene, keys, loss_grad, spp: int | None = None, seed: i
     "forward" (one forward-mode render per key), "replay" (one-pass adjoints: 1.5 renders for every key at once),
     "auto" (forward for one key). ``opts``: as ``Renderer``'s.
     """
-    keys = [keys] if isinstance(keys, str) else list(keys)
     spp = scene.spp if spp is None else spp
     seed = scene.sampler_seed if seed is None else seed
     if not (isinstance(spp, (int, np.integer)) and spp >= 2):
         raise RenderError(f"spp must be an integer >= 2 (two halves), got {spp!r}")
-    if method not in ("auto", "replay", "forward"):
-        raise RenderError(f"unknown backward method {method!r} (auto, replay or forward)")
-    if method == "auto":
-        method = "forward" if len(keys) == 1 else "replay"
-    params = parameters(scene)
-    for key in keys:
-        _lookup(params, key)
+    keys, method, params = _keys_and_method(scene, keys, method)
     # (seed, passes): two seeds, two independent sample sets (with Sobol' too: disjoint passes of one seed are not)
     halves = ((seed, spp // 2), (_other_seed(seed), spp - spp // 2))
 
@@ -270,8 +276,7 @@ def render_loss_gradient(scene, keys, loss_grad, spp: int | None = None, seed: i
         finally:
             r.close()
         imgs = [img_a, img_b]
-        grads = {key: 0.5 * ((rgb + rgb2) if params[key].kind == "material" else (rad + rad2))[params[key].index]
-                 for key in keys}
+        grads = {key: 0.5 * _adjoint_of(params, key, rgb + rgb2, rad + rad2) for key in keys}
     (_, na), (_, nb) = halves
     image = ((na * imgs[0].astype(np.float64) + nb * imgs[1]) / spp).astype(np.float32)
     return image, grads
