@@ -274,9 +274,16 @@ class Renderer:
         self.render_into(film, seed, first_pass, count, progress, callback)
         return film.sums()
 
+    stops_mid_call = True  # render_into takes a stop flag (the Ray executor's renderer does not)
+
     def render_into(self, film: Film, seed: int, first_pass: int, count: int, progress=False,
-                    callback: Callable[[int, "PassSum"], object] | None = None) -> int:
-        """Add passes ``first_pass ..`` (``count`` of them) of ``seed`` to ``film``; returns the number added."""
+                    callback: Callable[[int, "PassSum"], object] | None = None, stop=None) -> int:
+        """Add passes ``first_pass ..`` (``count`` of them) of ``seed`` to ``film``; returns the number added.
+
+        ``stop`` (anything with ``is_set()``, such as a ``jobs.StopFlag``): once set, no new pass is started and
+        the passes already started on some tile are finished on every tile, so the film still holds whole passes
+        (fewer than ``count``). A job looks at it this way instead of cutting its render into short calls, whose
+        ends would each leave a core idle while the other finishes its last tile."""
         seed = _check_int("seed", seed, 0, UINT32_LIMIT)
         count = _check_int("spp", count, 1)
         first_pass = _check_int("first_pass", first_pass, 0, UINT32_LIMIT)
@@ -352,9 +359,11 @@ class Renderer:
         pool = self._worker_pool()
         try:
             if pool is not None and callback is None:
-                done = self._run_free(pool, launch, launch_lt, chunks, tiles, bar)
+                done = self._run_free(pool, launch, launch_lt, chunks, tiles, bar, stop)
             else:
                 for first, n in chunks:
+                    if stop is not None and stop.is_set():
+                        break
                     if pool is None:
                         for t in range(tiles):
                             launch(t, first, n)
@@ -412,12 +421,23 @@ class Renderer:
             pass
 
     def _run_free(self, pool: ThreadPoolExecutor, launch, launch_lt, chunks: list[tuple[int, int]], tiles: int,
-                  bar) -> int:
+                  bar, stop=None) -> int:
         """Render every (chunk of passes, tile) with the pool's threads, taken on demand in chunk-major order (a
         faster thread takes more of them), with no barrier between chunks; the light paths, if any, on a thread
         of their own. A tile's chunks run in order, one at a time, so every pixel sums its passes in pass order.
-        Returns the number of passes done (all of them)."""
+        Returns the number of passes done: all of them, or, once ``stop`` is set, those of the chunks that some
+        tile (or the light tracer) had started by then, finished on every tile."""
         items = len(chunks) * tiles
+        started = [-1]  # under cond: the last item started before the stop was seen
+        cutoff = [items]  # under cond: the items that run (all, until the stop is seen: then whole chunks)
+
+        def may_start(i: int) -> bool:  # under cond
+            if cutoff[0] == items and stop is not None and stop.is_set():
+                cutoff[0] = min(items, -(-(started[0] + 1) // tiles) * tiles)
+            if i >= cutoff[0]:
+                return False
+            started[0] = max(started[0], i)
+            return True
         taken = itertools.count()  # next(count) is atomic under the GIL
         cond = threading.Condition()
         next_chunk = [0] * tiles  # per tile: the chunk it may run next
@@ -445,6 +465,8 @@ class Renderer:
                         return
                     c, tile = divmod(i, tiles)
                     with cond:  # its previous chunk was taken `tiles` items ago: almost always done by now
+                        if not may_start(i):
+                            return
                         cond.wait_for(lambda: next_chunk[tile] == c or failed.is_set())
                     if failed.is_set():
                         return
@@ -463,6 +485,9 @@ class Renderer:
             for k, (first, n) in enumerate(chunks):
                 if failed.is_set():
                     return
+                with cond:  # its chunk k is started like a tile's: the path tracer's must then finish too
+                    if not may_start(k * tiles):
+                        return
                 launch_lt(first, n)
                 with cond:
                     lt_done[0] = k + 1
@@ -479,7 +504,7 @@ class Renderer:
                 failed.set()  # interrupted: workers stop after their current launch
                 cond.notify_all()
             raise
-        return passes_before[-1]
+        return passes_before[cutoff[0] // tiles]
 
 _lock = threading.Lock()
 

@@ -134,6 +134,76 @@ def test_work_scheduler_runs_each_tile_in_order_and_balances():
     assert len(counts) == 2 and counts[slow[0]] < counts[next(k for k in counts if k != slow[0])] / 2
 
 
+@pytest.mark.parametrize("with_lt", [False, True])
+def test_run_free_stops_on_whole_chunks(with_lt):
+    """A stop set while the tiles run: no chunk is started after it but every chunk some tile (or the light
+    tracer) had started is finished on every tile, and the count returned is exactly those chunks' passes."""
+    import threading
+    import time
+
+    class Flag:
+        def __init__(self):
+            self.event = threading.Event()
+
+        def is_set(self):
+            return self.event.is_set()
+
+    for stop_after in (1, 7, 12, 40):  # launches before the stop is set (chunks of 6: in one, at an end)
+        r = pathtracer.Renderer(box_scene(), device="cpu", threads=2)
+        chunks = [(p, 1) for p in range(10)]
+        tiles = 6
+        lock = threading.Lock()
+        log, lt_log = [], []
+        flag = Flag()
+
+        def fake_launch(tile, first, n):
+            time.sleep(0.001)
+            with lock:
+                log.append((tile, first))
+                if len(log) == stop_after:
+                    flag.event.set()
+
+        def fake_lt(first, n):  # slower than a chunk of tiles (3 ms): the path tiles run ahead of it
+            time.sleep(0.004)
+            with lock:
+                lt_log.append(first)
+
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(3) as pool:  # two path workers and the light tracer's
+            done = r._run_free(pool, fake_launch, fake_lt if with_lt else None, chunks, tiles, None, flag)
+        r.close()
+        assert 1 <= done < 10, (stop_after, done)
+        assert sorted(log) == sorted((t, f) for t in range(tiles) for f in range(done)), (stop_after, done)
+        if with_lt:
+            assert lt_log == list(range(done))
+
+
+def test_stopped_render_holds_whole_passes():
+    """render_into with a stop that is set during the render: the film holds a whole number of passes, and they
+    equal the same passes rendered without a stop (every tile stopped at the same pass)."""
+    import threading
+
+    scene = box_scene()
+    r = Renderer(scene, device="cpu", threads=2)
+
+    class After:  # set once the first call to is_set after `n` calls
+        def __init__(self, n):
+            self.calls, self.n, self.lock = 0, n, threading.Lock()
+
+        def is_set(self):
+            with self.lock:
+                self.calls += 1
+                return self.calls > self.n
+
+    film = r.new_film()
+    done = r.render_into(film, 3, 0, 64, stop=After(5))
+    assert 1 <= done < 64 and film.passes == done and film.next_pass == done
+    whole = r.render_passes(seed=3, first_pass=0, count=done)
+    r.close()
+    np.testing.assert_array_equal(film.sums().sum, whole.sum)
+
+
 def test_different_seeds_differ(device):
     scene = box_scene()
     a = render(scene, spp=2, seed=0, device=device)
