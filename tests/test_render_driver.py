@@ -179,13 +179,15 @@ def test_run_free_stops_on_whole_chunks(with_lt):
             assert lt_log == list(range(done))
 
 
-def test_stopped_render_holds_whole_passes():
+@pytest.mark.parametrize("threads", [1, 2])
+def test_stopped_render_holds_whole_passes(threads):
     """render_into with a stop that is set during the render: the film holds a whole number of passes, and they
-    equal the same passes rendered without a stop (every tile stopped at the same pass)."""
+    equal the same passes rendered without a stop (every tile stopped at the same pass); one thread (the launch
+    loop) or two (the free-running scheduler)."""
     import threading
 
     scene = box_scene()
-    r = Renderer(scene, device="cpu", threads=2)
+    r = Renderer(scene, device="cpu", threads=threads)
 
     class After:  # set once the first call to is_set after `n` calls
         def __init__(self, n):
@@ -197,7 +199,7 @@ def test_stopped_render_holds_whole_passes():
                 return self.calls > self.n
 
     film = r.new_film()
-    done = r.render_into(film, 3, 0, 64, stop=After(5))
+    done = r.render_into(film, 3, 0, 64, stop=After(2))  # (one thread looks once a launch of 16 passes)
     assert 1 <= done < 64 and film.passes == done and film.next_pass == done
     whole = r.render_passes(seed=3, first_pass=0, count=done)
     r.close()
