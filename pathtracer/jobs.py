@@ -413,10 +413,7 @@ def _loop(renderer, film, run_seed, budget, checkpoint, checkpoint_every, previe
             if budget.seconds is not None and sec_per_pass is not None:
                 fit = int((budget.seconds - elapsed) / sec_per_pass)
             n = align(film.next_pass, n, left, fit)
-        if getattr(renderer, "stops_mid_call", False):
-            renderer.render_into(film, run_seed, film.next_pass, n, progress, stop=stop)
-        else:
-            renderer.render_into(film, run_seed, film.next_pass, n, progress)
+        renderer.render_into(film, run_seed, film.next_pass, n, progress, stop=stop)
         unit_sums = None
         now = time.perf_counter()
         # over the whole loop, not the last call: the farm's calls return early when units rendered ahead are in

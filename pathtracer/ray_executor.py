@@ -417,6 +417,8 @@ class FarmFilm:
 class FarmRenderer:
     """What the render job needs of a ``Renderer`` (new_film, render_into, the resolved options), on the farm."""
 
+    stops_mid_call = False  # a job looks at its stop flag between calls (units), not within one
+
     def __init__(self, executor: RayExecutor, scene, opts: dict):
         self.executor, self.scene, self.opts = executor, scene, dict(opts)
         self.key = (id(scene), tuple(sorted((k, repr(v)) for k, v in self.opts.items())))
@@ -480,9 +482,9 @@ class FarmRenderer:
         film.seed = seed
 
     def render_into(self, film: FarmFilm, seed: int, first_pass: int, count: int, progress=False,
-                    callback=None) -> int:
+                    callback=None, stop=None) -> int:
         """Add passes ``first_pass .. first_pass + count - 1`` to ``film`` (and maybe more, rendered ahead up to
-        ``film.horizon``); returns the passes added."""
+        ``film.horizon``); returns the passes added. ``stop`` is accepted and not looked at (``stops_mid_call``)."""
         if callback is not None:
             raise RenderError("a per-pass callback is not available on the Ray executor")
         self._begin(film, seed, first_pass)
