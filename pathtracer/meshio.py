@@ -1,5 +1,5 @@
-"""Triangle meshes from OBJ and PLY files (read by trimesh), Mitsuba's ``serialized`` files (read here: zlib and
-a fixed binary layout), and Mitsuba's vertex-normal recomputation.
+"""Triangle meshes from OBJ and PLY files (read by trimesh; the common OBJ here, without importing it), Mitsuba's
+``serialized`` files (read here: zlib and a fixed binary layout), and Mitsuba's vertex-normal recomputation.
 
 ``read_mesh`` returns the file's geometry in object space, one :class:`MeshPart` per trimesh
 geometry (an OBJ with several materials or objects gives several), each with the file's vertex
@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import io
 import logging
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -139,11 +140,66 @@ def _check_parts(parts: list[MeshPart]) -> None:
             raise MeshFileError("has a texture coordinate that is NaN or infinite")
 
 
-def read_mesh(path: Path, kind: str) -> list[MeshPart]:
-    """Read an ``obj`` or ``ply`` file with trimesh (no merging or reordering of vertices)."""
-    from trimesh.exchange import obj as tobj
-    from trimesh.exchange import ply as tply
+_OBJ_SIMPLE_KEYS = {b"v", b"vn", b"f", b"s"}
+_OBJ_KEY = re.compile(rb"^[ \t]*([^\s#]\S*)", re.M)
+_OBJ_INDENTED = re.compile(rb"^[ \t]+\S", re.M)
+_N = rb"[ \t]+(\S+)"
+_OBJ_V = re.compile(rb"^[ \t]*v" + _N * 3 + rb"(?:[ \t]+\S+[ \t]+\S+[ \t]+\S+)?[ \t]*\r?$", re.M)
+_OBJ_VN = re.compile(rb"^[ \t]*vn" + _N * 3 + rb"[ \t]*\r?$", re.M)
+_OBJ_F = re.compile(rb"^[ \t]*f" + _N * 3 + rb"[ \t]*\r?$", re.M)
 
+
+def _count(key: bytes, data: bytes) -> int:
+    return len(re.findall(rb"^[ \t]*" + key + rb"[ \t]", data, re.M))
+
+
+def read_simple_obj(data: bytes) -> list[MeshPart] | None:
+    """The common OBJ, parsed here: only ``v`` (3 numbers, or 6 with colours), ``vn``, ``s``, comment and triangle
+    ``f`` lines, corners written ``a`` or ``a//a`` (normal index = vertex index, one normal per vertex), positive
+    indices in range. Vertices no face uses are dropped (as trimesh does; with normals, trimesh reads the file).
+
+    Importing trimesh costs about a second of every process (it imports scipy where installed), far more than the
+    seed's meshes take to parse. None where the file uses anything else (objects, groups, materials, texture
+    coordinates, polygons, negative indices, ...): trimesh reads those, so both paths give the same arrays
+    (tests/test_loader.py compares them).
+    """
+    if not set(_OBJ_KEY.findall(data)) <= _OBJ_SIMPLE_KEYS or _OBJ_INDENTED.search(data):
+        return None  # trimesh skips some indented lines
+    v, vn, f = _OBJ_V.findall(data), _OBJ_VN.findall(data), _OBJ_F.findall(data)
+    if not v or not f or (len(v), len(vn), len(f)) != (_count(b"v", data), _count(b"vn", data), _count(b"f", data)):
+        return None  # a line of another form (a 4-number v, a polygon, a trailing comment)
+    joined = b" ".join(b" ".join(tri) for tri in f)
+    slashes = joined.count(b"/")
+    if slashes not in (0, 6 * len(f)):  # every corner "a", or every corner "a//n"
+        return None
+    try:
+        toks = joined.replace(b"//", b" ").split()
+        if len(toks) != 3 * len(f) * (2 if slashes else 1):
+            return None  # "a/b/c" split into more pieces, or "a//" into fewer
+        idx = np.array(toks, dtype=np.int64).reshape(3 * len(f), -1)  # ValueError on "a/b" (negatives: below)
+        vertices = np.array(v, dtype=np.float64)
+        normals = np.array(vn, dtype=np.float64).reshape(-1, 3) if vn else None
+    except ValueError:
+        return None
+    if idx.min() < 1 or idx.max() > len(vertices):
+        return None
+    faces = (idx[:, 0] - 1).reshape(-1, 3)
+    used = np.zeros(len(vertices), dtype=bool)
+    used[faces] = True
+    if idx.shape[1] == 2:
+        if normals is None or len(normals) != len(vertices) or np.any(idx[:, 0] != idx[:, 1]) or not used.all():
+            return None
+    elif normals is not None:
+        return None
+    elif not used.all():
+        faces = (np.cumsum(used) - 1)[faces]
+        vertices = vertices[used]
+    return [MeshPart(vertices, faces, normals, None)]
+
+
+def read_mesh(path: Path, kind: str) -> list[MeshPart]:
+    """Read an ``obj`` or ``ply`` file with trimesh (no merging or reordering of vertices); the common OBJ without
+    it (:func:`read_simple_obj`)."""
     try:
         data = Path(path).read_bytes()
     except OSError as e:
@@ -152,6 +208,13 @@ def read_mesh(path: Path, kind: str) -> list[MeshPart]:
         raise MeshFileError("is empty")
     if kind == "obj" and b"\0" in data:
         raise MeshFileError("is binary data, not a text OBJ file")
+    if kind == "obj":
+        parts = read_simple_obj(data)
+        if parts is not None:
+            _check_parts(parts)
+            return parts
+    from trimesh.exchange import obj as tobj
+    from trimesh.exchange import ply as tply
 
     # trimesh logs (and then skips) things like a missing .mtl; that is not our user's concern.
     log = logging.getLogger("trimesh")

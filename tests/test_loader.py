@@ -933,6 +933,69 @@ def test_bad_obj_files(tmp_path, content, problem):
     _check_error(e.value, p, '<shape type="obj">', f'mesh file "m.obj" {problem}')
 
 
+
+def _trimesh_parts(data: bytes) -> list[meshio.MeshPart]:
+    import io
+
+    from trimesh.exchange import obj as tobj
+
+    loaded = tobj.load_obj(io.BytesIO(data))
+    return meshio._parts_from_kwargs(list(loaded["geometry"].values()) if "geometry" in loaded else [loaded])
+
+
+SHARED_MESHES = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
+SIMPLE_OBJS = {
+    "unused vertices, CRLF": b"v 0 0 0\r\nv 9 9 9\r\nv 1 0 0\r\nv 0 1 0\r\nf 1 3 4\r\nf 4 3 1\r\n",
+    "normals": b"v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 2\nvn 0 1 1\nvn 1 0 1\ns 1\nf 1//1 2//2 3//3\n",
+    "colours": b"# c\nv 0 0 0 1 0 0\nv 1 0 0 0 1 0\nv 0 1 0 0 0 1\nf 3 2 1\n",
+}
+
+
+@pytest.mark.parametrize("name", ["teapot.obj", "teapot_6k.obj", "bunny.obj", *SIMPLE_OBJS])
+def test_simple_obj_reader_gives_trimesh_arrays(name):
+    """The OBJ files read without trimesh give exactly trimesh's arrays (positions, faces, normals, no uv)."""
+    if name in SIMPLE_OBJS:
+        data = SIMPLE_OBJS[name]
+    else:
+        if not (SHARED_MESHES / name).exists():
+            pytest.fail(f"shared data not present: {SHARED_MESHES / name}")
+        data = (SHARED_MESHES / name).read_bytes()
+    ours, theirs = meshio.read_simple_obj(data), _trimesh_parts(data)
+    assert ours is not None and len(ours) == len(theirs) == 1
+    a, b = ours[0], theirs[0]
+    np.testing.assert_array_equal(a.vertices, b.vertices)
+    np.testing.assert_array_equal(a.faces, b.faces)
+    assert (a.normals is None) == (b.normals is None)
+    if a.normals is not None:
+        np.testing.assert_array_equal(a.normals, b.normals)
+    assert a.uv is None and b.uv is None
+
+
+TRI = b"v 0 0 0\nv 1 0 0\nv 0 1 0\n"
+
+
+@pytest.mark.parametrize("data", [
+    TRI + b"f 1/1 2/2 3/3\nvt 0 0\n", TRI + b"f -3 -2 -1\n", TRI + b"f 1 2 3 # comment\n", TRI + b"v 1 1 0\nf 1 2 3 4\n",
+    b"o a\n" + TRI + b"f 1 2 3\n", b"usemtl m\n" + TRI + b"f 1 2 3\n", TRI + b"g g\nf 1 2 3\n",
+    TRI + b"vn 0 0 1\nvn 0 0 1\nvn 0 0 1\nf 1//1 2// 3//3\n", TRI + b"vn 0 0 1\nf 1//1 2//1 3//1\n",
+    TRI + b"f 1 2 4\n", TRI + b"f 1 2 3.5\n", b"v 0 0 0 1\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", TRI,
+    TRI + b"  f 1 2 3\n",
+])
+def test_simple_obj_reader_leaves_everything_else_to_trimesh(data):
+    assert meshio.read_simple_obj(data) is None
+
+
+def test_loading_the_teapot_scene_does_not_import_trimesh():
+    """trimesh's import (with scipy's) was about a second of every teapot process."""
+    import subprocess
+    import sys
+
+    code = ("import sys, pathtracer; pathtracer.load_file(sys.argv[1], width=8, height=6); "
+            "print('trimesh' in sys.modules)")
+    r = subprocess.run([sys.executable, "-c", code, str(SCENES / "teapot_in_box.xml")], capture_output=True,
+                       text=True, check=True)
+    assert r.stdout.strip().splitlines()[-1] == "False"
+
 def test_shared_bunny_ply_with_body_comments_is_rejected(tmp_path):
     """data/meshes/bunny_res4.ply has 'comment' lines among its faces: Mitsuba refuses it too."""
     bunny = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes" / "bunny_res4.ply"
