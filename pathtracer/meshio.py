@@ -149,10 +149,6 @@ _OBJ_VN = re.compile(rb"^[ \t]*vn" + _N * 3 + rb"[ \t]*\r?$", re.M)
 _OBJ_F = re.compile(rb"^[ \t]*f" + _N * 3 + rb"[ \t]*\r?$", re.M)
 
 
-def _count(key: bytes, data: bytes) -> int:
-    return len(re.findall(rb"^[ \t]*" + key + rb"[ \t]", data, re.M))
-
-
 def read_simple_obj(data: bytes) -> list[MeshPart] | None:
     """The common OBJ, parsed here: only ``v`` (3 numbers, or 6 with colours), ``vn``, ``s``, comment and triangle
     ``f`` lines, corners written ``a`` or ``a//a`` (normal index = vertex index, one normal per vertex), positive
@@ -163,11 +159,12 @@ def read_simple_obj(data: bytes) -> list[MeshPart] | None:
     coordinates, polygons, negative indices, ...): trimesh reads those, so both paths give the same arrays
     (tests/test_loader.py compares them).
     """
-    if not set(_OBJ_KEY.findall(data)) <= _OBJ_SIMPLE_KEYS or _OBJ_INDENTED.search(data):
+    keys = _OBJ_KEY.findall(data)
+    if not set(keys) <= _OBJ_SIMPLE_KEYS or _OBJ_INDENTED.search(data):
         return None  # trimesh skips some indented lines
     v, vn, f = _OBJ_V.findall(data), _OBJ_VN.findall(data), _OBJ_F.findall(data)
-    if not v or not f or (len(v), len(vn), len(f)) != (_count(b"v", data), _count(b"vn", data), _count(b"f", data)):
-        return None  # a line of another form (a 4-number v, a polygon, a trailing comment)
+    if not v or not f or (len(v), len(vn), len(f)) != (keys.count(b"v"), keys.count(b"vn"), keys.count(b"f")):
+        return None  # a line of another form (a 4-number v, a polygon, an empty f, a trailing comment)
     joined = b" ".join(b" ".join(tri) for tri in f)
     slashes = joined.count(b"/")
     if slashes not in (0, 6 * len(f)):  # every corner "a", or every corner "a//n"

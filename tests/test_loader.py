@@ -979,7 +979,7 @@ TRI = b"v 0 0 0\nv 1 0 0\nv 0 1 0\n"
     b"o a\n" + TRI + b"f 1 2 3\n", b"usemtl m\n" + TRI + b"f 1 2 3\n", TRI + b"g g\nf 1 2 3\n",
     TRI + b"vn 0 0 1\nvn 0 0 1\nvn 0 0 1\nf 1//1 2// 3//3\n", TRI + b"vn 0 0 1\nf 1//1 2//1 3//1\n",
     TRI + b"f 1 2 4\n", TRI + b"f 1 2 3.5\n", b"v 0 0 0 1\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", TRI,
-    TRI + b"  f 1 2 3\n",
+    TRI + b"  f 1 2 3\n", TRI + b"f 1 2 3\nf\n",
 ])
 def test_simple_obj_reader_leaves_everything_else_to_trimesh(data):
     assert meshio.read_simple_obj(data) is None
