@@ -141,12 +141,12 @@ def _check_parts(parts: list[MeshPart]) -> None:
 
 
 _OBJ_SIMPLE_KEYS = {b"v", b"vn", b"f", b"s"}
-_OBJ_KEY = re.compile(rb"^[ \t]*([^\s#]\S*)", re.M)
+_OBJ_KEY = re.compile(rb"^([^\s#]\S*)", re.M)
 _OBJ_INDENTED = re.compile(rb"^[ \t]+\S", re.M)
 _N = rb"[ \t]+(\S+)"
-_OBJ_V = re.compile(rb"^[ \t]*v" + _N * 3 + rb"(?:[ \t]+\S+[ \t]+\S+[ \t]+\S+)?[ \t]*\r?$", re.M)
-_OBJ_VN = re.compile(rb"^[ \t]*vn" + _N * 3 + rb"[ \t]*\r?$", re.M)
-_OBJ_F = re.compile(rb"^[ \t]*f" + _N * 3 + rb"[ \t]*\r?$", re.M)
+_OBJ_V = re.compile(rb"^v" + _N * 3 + rb"(?:[ \t]+\S+[ \t]+\S+[ \t]+\S+)?[ \t]*\r?$", re.M)
+_OBJ_VN = re.compile(rb"^vn" + _N * 3 + rb"[ \t]*\r?$", re.M)
+_OBJ_F = re.compile(rb"^f" + _N * 3 + rb"[ \t]*\r?$", re.M)
 
 
 def read_simple_obj(data: bytes) -> list[MeshPart] | None:
@@ -195,8 +195,8 @@ def read_simple_obj(data: bytes) -> list[MeshPart] | None:
 
 
 def read_mesh(path: Path, kind: str) -> list[MeshPart]:
-    """Read an ``obj`` or ``ply`` file with trimesh (no merging or reordering of vertices); the common OBJ without
-    it (:func:`read_simple_obj`)."""
+    """Read an ``obj`` or ``ply`` file: the common OBJ here (:func:`read_simple_obj`), everything else with trimesh
+    (no merging or reordering of vertices)."""
     try:
         data = Path(path).read_bytes()
     except OSError as e:
@@ -205,11 +205,15 @@ def read_mesh(path: Path, kind: str) -> list[MeshPart]:
         raise MeshFileError("is empty")
     if kind == "obj" and b"\0" in data:
         raise MeshFileError("is binary data, not a text OBJ file")
-    if kind == "obj":
-        parts = read_simple_obj(data)
-        if parts is not None:
-            _check_parts(parts)
-            return parts
+    parts = read_simple_obj(data) if kind == "obj" else None
+    if parts is None:
+        parts = read_with_trimesh(data, kind)
+    _check_parts(parts)
+    return parts
+
+
+def read_with_trimesh(data: bytes, kind: str) -> list[MeshPart]:
+    """The parts of an ``obj`` or ``ply`` file's bytes as trimesh reads them (not yet checked)."""
     from trimesh.exchange import obj as tobj
     from trimesh.exchange import ply as tply
 
@@ -228,16 +232,13 @@ def read_mesh(path: Path, kind: str) -> list[MeshPart]:
             kwargs_list = [tply.load_ply(io.BytesIO(data))]
         else:  # pragma: no cover - the loader only asks for obj and ply
             raise ValueError(kind)
-        parts = _parts_from_kwargs(kwargs_list)
+        return _parts_from_kwargs(kwargs_list)
     except MeshFileError:
         raise
     except Exception as e:  # trimesh raises many kinds on malformed files
         raise MeshFileError(f"could not be read as {kind.upper()} ({_one_line(e)})") from None
     finally:
         log.setLevel(level)
-
-    _check_parts(parts)
-    return parts
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

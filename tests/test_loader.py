@@ -933,16 +933,6 @@ def test_bad_obj_files(tmp_path, content, problem):
     _check_error(e.value, p, '<shape type="obj">', f'mesh file "m.obj" {problem}')
 
 
-
-def _trimesh_parts(data: bytes) -> list[meshio.MeshPart]:
-    import io
-
-    from trimesh.exchange import obj as tobj
-
-    loaded = tobj.load_obj(io.BytesIO(data))
-    return meshio._parts_from_kwargs(list(loaded["geometry"].values()) if "geometry" in loaded else [loaded])
-
-
 SHARED_MESHES = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
 SIMPLE_OBJS = {
     "unused vertices, CRLF": b"v 0 0 0\r\nv 9 9 9\r\nv 1 0 0\r\nv 0 1 0\r\nf 1 3 4\r\nf 4 3 1\r\n",
@@ -960,7 +950,7 @@ def test_simple_obj_reader_gives_trimesh_arrays(name):
         if not (SHARED_MESHES / name).exists():
             pytest.fail(f"shared data not present: {SHARED_MESHES / name}")
         data = (SHARED_MESHES / name).read_bytes()
-    ours, theirs = meshio.read_simple_obj(data), _trimesh_parts(data)
+    ours, theirs = meshio.read_simple_obj(data), meshio.read_with_trimesh(data, "obj")
     assert ours is not None and len(ours) == len(theirs) == 1
     a, b = ours[0], theirs[0]
     np.testing.assert_array_equal(a.vertices, b.vertices)
@@ -995,6 +985,7 @@ def test_loading_the_teapot_scene_does_not_import_trimesh():
     r = subprocess.run([sys.executable, "-c", code, str(SCENES / "teapot_in_box.xml")], capture_output=True,
                        text=True, check=True)
     assert r.stdout.strip().splitlines()[-1] == "False"
+
 
 def test_shared_bunny_ply_with_body_comments_is_rejected(tmp_path):
     """data/meshes/bunny_res4.ply has 'comment' lines among its faces: Mitsuba refuses it too."""
