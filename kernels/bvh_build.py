@@ -66,3 +66,55 @@ def leaf_soa(
         soa[9 * leaf + 3 * corner + 0] = x
         soa[9 * leaf + 3 * corner + 1] = y
         soa[9 * leaf + 3 * corner + 2] = z
+
+
+@wp.func
+def box_area(lo: wp.vec3d, hi: wp.vec3d) -> wp.float64:
+    e = hi - lo
+    return e[0] * e[1] + e[1] * e[2] + e[2] * e[0]
+
+
+@wp.kernel(enable_backward=False)
+def sah_sweep(
+    order: wp.array(dtype=wp.int32),  # box indices, each range sorted along one axis
+    lower: wp.array(dtype=wp.vec3),
+    upper: wp.array(dtype=wp.vec3),
+    starts: wp.array(dtype=wp.int32),  # one range per thread, at least 2 boxes
+    sizes: wp.array(dtype=wp.int32),
+    block: int,  # boxes per leaf block
+    scratch: wp.array(dtype=wp.float64),  # as long as order: the left sides' areas
+    # output
+    cost: wp.array(dtype=wp.float64),
+    cut: wp.array(dtype=wp.int32),
+):
+    """The cheapest cut of each range in its order: area(left) x blocks(left) + area(right) x blocks(right), where
+    blocks counts the leaf blocks a side needs at least (so a cut that leaves blocks part-empty pays for it). Areas in
+    float64: float32 boxes can hold areas float32 cannot. Among equal costs the most balanced cut wins."""
+    r = wp.tid()
+    s = starts[r]
+    m = sizes[r]
+    big = wp.float64(1.0e300)
+    lo = wp.vec3d(big, big, big)
+    hi = wp.vec3d(-big, -big, -big)
+    for j in range(m - 1):
+        p = order[s + j]
+        lo = wp.min(lo, wp.vec3d(lower[p]))
+        hi = wp.max(hi, wp.vec3d(upper[p]))
+        scratch[s + j] = box_area(lo, hi)
+    lo = wp.vec3d(big, big, big)
+    hi = wp.vec3d(-big, -big, -big)
+    best = wp.float64(big)
+    best_k = m / 2
+    fb = wp.float64(block)
+    for j in range(m - 1, 0, -1):  # the right side holds positions j .. m - 1
+        p = order[s + j]
+        lo = wp.min(lo, wp.vec3d(lower[p]))
+        hi = wp.max(hi, wp.vec3d(upper[p]))
+        k = j
+        c = scratch[s + j - 1] * wp.ceil(wp.float64(k) / fb) + box_area(lo, hi) * wp.ceil(wp.float64(m - k) / fb)
+        c = c * (wp.float64(1.0) + wp.float64(1.0e-12) * wp.float64(wp.abs(2 * k - m)))
+        if c < best:
+            best = c
+            best_k = k
+    cost[r] = best
+    cut[r] = best_k

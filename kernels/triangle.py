@@ -2,7 +2,8 @@
 
 Each node tests its four child boxes at once (vec4 operations, which Warp's clang turns into SSE/AVX; selects rather
 than min/max or `and`, which would keep it scalar), and each leaf its up to four triangles at once
-(``leaf_closest``). Closest-hit traversal is nearest-first with a stack of entry distances.
+(``leaf_closest``). Closest-hit traversal is nearest-first with a stack of entry distances, branch-free
+within a node (``mesh_closest``).
 
 Warp's ``mesh_query_ray`` has a watertight triangle test but a slab test with no rounding slack, so a ray through a
 vertex that lies on a node box's face can skip the leaf that holds the hit (Warp 1.19: 99 of 34594 rays aimed at
@@ -255,28 +256,36 @@ class Children:
 
 
 @wp.func
-def sort_pair(t: wp.vec4, c: wp.vec4i, i: int, j: int) -> Children:
-    """(t, c) with entries i < j swapped if t[j] < t[i]."""
+def compare_exchange(t: wp.vec4, c: wp.vec4i, i: int, j: int) -> Children:
+    """(t, c) with entries i < j swapped if t[j] < t[i], by selects: a branch here would be mispredicted about
+    half the time, and the traversal is mostly such branches."""
+    swap = t[j] < t[i]
     tt = t
     cc = c
-    if t[j] < t[i]:
-        tt[i] = t[j]
-        tt[j] = t[i]
-        cc[i] = c[j]
-        cc[j] = c[i]
+    tt[i] = wp.where(swap, t[j], t[i])
+    tt[j] = wp.where(swap, t[i], t[j])
+    cc[i] = wp.where(swap, c[j], c[i])
+    cc[j] = wp.where(swap, c[i], c[j])
     out = Children()
     out.t = tt
     out.c = cc
     return out
 
 
+STACK_SLACK = 3  # a node writes all four stack slots above the top whatever it pushes (see mesh_closest)
+
+
 @wp.func
 def mesh_closest(scene: SceneData, o: wp.vec3, d: wp.vec3, tmax: float) -> TriHit:
     """The nearest triangle hit in 0 <= t < tmax (unit d); ``face`` -1 if none.
 
-    Nearest-first traversal of the 4-wide tree (pathtracer/bvh.py collapse_wide): of a node's children the ray
-    meets, the nearest is entered next and the others pushed far to near with their entry distances (a node with
-    one such child pushes nothing); a popped entry beyond the nearest hit so far is skipped.
+    Nearest-first traversal of the 4-wide tree (pathtracer/bvh.py collapse_wide) through a stack of (entry
+    distance, reference): a popped entry that starts beyond the nearest hit so far is skipped; a node sorts its
+    four (distance, child) pairs, misses last, and pushes the children the ray meets far to near, so the nearest
+    is popped next. Every step is the same straight-line code whatever the node holds: the sort is a
+    five-comparator network of selects, and the push writes all four slots above the top (those beyond the hit
+    children are garbage the next pushes overwrite) and raises the top by the hit count. On the bunny's random
+    rays that ran 11% faster than branching on the hit count, entering a single hit child without a push.
     """
     r = ray_shear(d)
     rb = ray_boxes(o, r)
@@ -285,56 +294,36 @@ def mesh_closest(scene: SceneData, o: wp.vec3, d: wp.vec3, tmax: float) -> TriHi
     best.t = tmax
     stack_node = StackInt()
     stack_t = StackFloat()
-    sp = int(0)
-    ref = scene.bvh_root
-    while True:
-        if ref >= 0:
-            t4 = wide_entry(scene, ref, rb, best.t)
-            c4 = scene.bvh_child[ref]
-            hits = int(0)
-            only = int(0)
-            for k in range(4):  # selects, not branches
-                hit = t4[k] < BIG
-                hits += wp.where(hit, 1, 0)
-                only = wp.where(hit, c4[k], only)
-            if hits == 1:
-                ref = only
-                continue
-            if hits > 1:
-                # sort the four (distance, child) pairs, misses (BIG) last: a five-comparator network
-                s01 = sort_pair(t4, c4, 0, 1)
-                t4 = s01.t
-                c4 = s01.c
-                s23 = sort_pair(t4, c4, 2, 3)
-                s02 = sort_pair(s23.t, s23.c, 0, 2)
-                s13 = sort_pair(s02.t, s02.c, 1, 3)
-                s12 = sort_pair(s13.t, s13.c, 1, 2)
-                t4 = s12.t
-                c4 = s12.c
-                for k in range(3, 0, -1):
-                    if k < hits:
-                        stack_node[sp] = c4[k]
-                        stack_t[sp] = t4[k]
-                        sp += 1
-                ref = c4[0]
-                continue
-        else:
-            leaf = leaf_index(ref)
-            h = leaf_closest(scene, leaf, o, r, best.t)
-            if h.lane >= 0:
-                best.face = 4 * leaf + h.lane
-                best.t = h.t
-                best.u = h.u
-                best.v = h.v
-        # pop the next subtree that still starts before the nearest hit
-        found = bool(False)
-        while sp > 0 and not found:
-            sp -= 1
-            if stack_t[sp] < best.t:
-                ref = stack_node[sp]
-                found = True
-        if not found:
-            break
+    stack_node[0] = scene.bvh_root
+    stack_t[0] = 0.0
+    sp = int(1)
+    while sp > 0:
+        sp -= 1
+        ref = stack_node[sp]
+        if stack_t[sp] < best.t:
+            if ref >= 0:
+                t4 = wide_entry(scene, ref, rb, best.t)
+                hits = int(0)
+                for k in range(4):
+                    hits += wp.where(t4[k] < BIG, 1, 0)
+                s = compare_exchange(t4, scene.bvh_child[ref], 0, 1)
+                s = compare_exchange(s.t, s.c, 2, 3)
+                s = compare_exchange(s.t, s.c, 0, 2)
+                s = compare_exchange(s.t, s.c, 1, 3)
+                s = compare_exchange(s.t, s.c, 1, 2)
+                for j in range(4):
+                    k = wp.where(hits - 1 - j < 0, 0, hits - 1 - j)
+                    stack_node[sp + j] = s.c[k]
+                    stack_t[sp + j] = s.t[k]
+                sp += hits
+            else:
+                leaf = leaf_index(ref)
+                h = leaf_closest(scene, leaf, o, r, best.t)
+                if h.lane >= 0:
+                    best.face = 4 * leaf + h.lane
+                    best.t = h.t
+                    best.u = h.u
+                    best.v = h.v
     if best.face >= 0:
         best.face = scene.tri_face[best.face]
     return best
@@ -342,34 +331,23 @@ def mesh_closest(scene: SceneData, o: wp.vec3, d: wp.vec3, tmax: float) -> TriHi
 
 @wp.func
 def mesh_occluded(scene: SceneData, o: wp.vec3, d: wp.vec3, tmax: float) -> bool:
-    """Any triangle hit in 0 <= t < tmax (unit d)? (Any hit ends the search, so no ordering.)"""
+    """Any triangle hit in 0 <= t < tmax (unit d)? Any hit ends the search, so the children the ray meets are
+    pushed in slot order, with the same branch-free push as ``mesh_closest``'s."""
     r = ray_shear(d)
     rb = ray_boxes(o, r)
     stack_node = StackInt()
-    sp = int(0)
-    ref = scene.bvh_root
-    while True:
+    stack_node[0] = scene.bvh_root
+    sp = int(1)
+    while sp > 0:
+        sp -= 1
+        ref = stack_node[sp]
         if ref >= 0:
             t4 = wide_entry(scene, ref, rb, tmax)
             c4 = scene.bvh_child[ref]
-            found = bool(False)
-            next_ref = int(0)
             for k in range(4):
-                if t4[k] < BIG:
-                    if not found:
-                        next_ref = c4[k]
-                        found = True
-                    else:
-                        stack_node[sp] = c4[k]
-                        sp += 1
-            if found:
-                ref = next_ref
-                continue
-        elif ref != -1:  # -1: an empty slot (never entered: its box is empty)
+                stack_node[sp] = c4[k]
+                sp += wp.where(t4[k] < BIG, 1, 0)
+        elif ref != -1:  # -1: an empty tree
             if leaf_closest(scene, leaf_index(ref), o, r, tmax).lane >= 0:
                 return True
-        if sp == 0:
-            break
-        sp -= 1
-        ref = stack_node[sp]
     return False

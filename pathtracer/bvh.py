@@ -1,12 +1,14 @@
-"""A bounding volume hierarchy over boxes, built with numpy for ``kernels/triangle.py``'s nearest-first traversal.
+"""A bounding volume hierarchy over boxes, built with numpy and Warp for ``kernels/triangle.py``'s nearest-first traversal.
 
 Why our own: Warp 1.19's ``wp.Bvh`` ray query visits a node's two children in a fixed order, so a closest-hit query
 keeps descending into far subtrees until a hit shrinks its limit; on the mirror teapot that traversal was 60% of the
 render time. Here the traversal tests both children and descends into the nearer one first.
 
-Every inner node sorts its range of primitives along the longest axis of its box centres and cuts it where the
-surface area heuristic is lowest (a sweep along that one axis), or at the middle for small ranges and deep levels;
-a level's sorts are one vectorised ``lexsort``, so a 70k-triangle mesh builds in about a second.
+Every inner node cuts its range of primitives where the surface area heuristic, counted in 4-primitive leaf blocks,
+is lowest over a sweep along each of the three axes (the sweeps in a CPU Warp kernel, one thread per range; the
+three sorted orders kept by stable partitions rather than sorted again), or at the middle at deep levels: the bunny
+(70k triangles) builds in 0.15 s. Against the earlier sweep along the longest axis only, with cuts at the middle
+below 16 primitives, its random rays visit 6% fewer wide nodes and 15% fewer leaves.
 ``collapse_wide`` turns the binary tree into the 4-wide one the kernels traverse (each node takes its grandchildren).
 """
 
@@ -17,7 +19,6 @@ from dataclasses import dataclass
 import numpy as np
 
 LEAF_SIZE = 4  # at most this many primitives per leaf
-SAH_MIN = 16  # ranges at least this large split where the surface area heuristic says, smaller ones at the median
 SAH_LEVELS = 32  # below this depth, medians only: the tree stays shallower than the traversal's 64-entry stack
 
 
@@ -38,20 +39,6 @@ def _ranges(starts: np.ndarray, sizes: np.ndarray) -> tuple[np.ndarray, np.ndarr
     seg = np.repeat(np.arange(len(starts)), sizes)
     offsets = np.cumsum(sizes) - sizes
     return starts[seg] + np.arange(int(sizes.sum())) - offsets[seg], seg
-
-
-def _area(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    e = np.maximum(hi - lo, 0.0)
-    return e[..., 0] * e[..., 1] + e[..., 1] * e[..., 2] + e[..., 2] * e[..., 0]
-
-
-def _sah_split(lo: np.ndarray, hi: np.ndarray) -> int:
-    """Where to cut boxes sorted along one axis: the k minimising area(left) k + area(right) (m - k)."""
-    m = len(lo)
-    left = _area(np.minimum.accumulate(lo, axis=0), np.maximum.accumulate(hi, axis=0))[:-1]
-    right = _area(np.minimum.accumulate(lo[::-1], axis=0), np.maximum.accumulate(hi[::-1], axis=0))[::-1][1:]
-    k = np.arange(1, m)
-    return int(np.argmin(left * k + right * (m - k))) + 1
 
 
 MORTON_MIN = 200_000  # from this many boxes on, build_tree uses the Morton (linear) builder
@@ -151,36 +138,66 @@ def build_tree(lower: np.ndarray, upper: np.ndarray) -> BoxTree:
 def build_box_tree(lower: np.ndarray, upper: np.ndarray, leaf_size: int = LEAF_SIZE) -> BoxTree:
     """Tree over the boxes [lower[i], upper[i]] (float32, already padded as the caller needs).
 
-    Level by level: every range is sorted along the longest axis of its box centres (one vectorised sort for the
-    whole level), then cut where the surface area heuristic is lowest (ranges of SAH_MIN or more, in the top
-    SAH_LEVELS levels) or at the middle."""
+    Level by level, every range of more than ``leaf_size`` boxes is cut where the surface area heuristic (counted
+    in leaf blocks: ``kernels/bvh_build.py`` sah_sweep, one CPU thread per range) is lowest over a sweep along
+    each of the three axes, or, below SAH_LEVELS, at
+    the middle of its widest axis. The boxes are sorted along each axis once; a cut partitions all three orders
+    stably, so every range stays sorted along every axis without sorting again."""
     lower = np.asarray(lower, dtype=np.float32).reshape(-1, 3)
     upper = np.asarray(upper, dtype=np.float32).reshape(-1, 3)
     n = len(lower)
     if n == 0:
         raise ValueError("a box tree needs at least one box")
-    centre = 0.5 * (lower.astype(np.float64) + upper.astype(np.float64))
-    lo64, hi64 = lower.astype(np.float64), upper.astype(np.float64)
-    perm = np.arange(n)
+    import warp as wp
+
+    from kernels.bvh_build import sah_sweep
+    from pathtracer.warp_setup import init_warp
+
+    init_warp()
+    centre = 0.5 * (lower.astype(np.float64) + upper)
+    order = np.stack([np.argsort(centre[:, a], kind="stable") for a in range(3)]).astype(np.int32)  # (3, n)
+    is_left = np.zeros(n, dtype=bool)
+    lower_wp = wp.array(lower, dtype=wp.vec3, device="cpu")
+    upper_wp = wp.array(upper, dtype=wp.vec3, device="cpu")
+    orders_wp = [wp.array(order[a], dtype=wp.int32, device="cpu", copy=False) for a in range(3)]  # views of order
+    scratch = wp.empty(n, dtype=wp.float64, device="cpu")
 
     def choose_cut(starts, sizes, level):
         pos, seg = _ranges(starts, sizes)
-        c = centre[perm[pos]]
-        offsets = np.cumsum(sizes) - sizes
-        extent = np.maximum.reduceat(c, offsets, axis=0) - np.minimum.reduceat(c, offsets, axis=0)
-        axis = np.argmax(extent, axis=1)
-        key = c[np.arange(len(pos)), axis[seg]]
-        order = np.lexsort((key, seg))  # by range, then along its axis: ranges stay where they are
-        perm[pos] = perm[pos[order]]
-        cut = sizes // 2
+        rank = pos - starts[seg]
         if level <= SAH_LEVELS:
-            for j in np.nonzero(sizes >= SAH_MIN)[0]:
-                p = perm[starts[j]:starts[j] + sizes[j]]
-                cut[j] = _sah_split(lo64[p], hi64[p])
+            costs = np.empty((3, len(sizes)))
+            cuts = np.empty((3, len(sizes)), dtype=np.int32)
+            s_wp = wp.array(starts.astype(np.int32), dtype=wp.int32, device="cpu")
+            m_wp = wp.array(sizes.astype(np.int32), dtype=wp.int32, device="cpu")
+            for a in range(3):
+                c_wp = wp.array(costs[a], dtype=wp.float64, device="cpu", copy=False)
+                k_wp = wp.array(cuts[a], dtype=wp.int32, device="cpu", copy=False)
+                wp.launch(sah_sweep, dim=len(sizes), device="cpu", inputs=[orders_wp[a], lower_wp, upper_wp, s_wp,
+                                                                           m_wp, leaf_size, scratch],
+                          outputs=[c_wp, k_wp])
+            axis = np.argmin(costs, axis=0)
+            cut = cuts[axis, np.arange(len(sizes))].astype(np.int64)
+        else:
+            ends = starts + sizes - 1
+            extent = centre[order[:, ends], np.arange(3)[:, None]] - centre[order[:, starts], np.arange(3)[:, None]]
+            axis = np.argmax(extent, axis=0)
+            cut = sizes // 2
+        chosen = order[axis[seg], pos]
+        is_left[chosen] = rank < cut[seg]
+        offsets = np.cumsum(sizes) - sizes
+        for a in range(3):  # stable partition of every range, left boxes first, in all three orders
+            ids = order[a, pos]
+            left = is_left[ids]
+            before_l = np.cumsum(left) - left  # left boxes before each position
+            before_r = np.arange(len(ids)) - before_l
+            lrank = before_l - before_l[offsets][seg]
+            rrank = before_r - before_r[offsets][seg]
+            order[a, starts[seg] + np.where(left, lrank, cut[seg] + rrank)] = ids
         return cut
 
     levels, next_id = _split_levels(n, leaf_size, choose_cut)
-    return _bottom_up(levels, next_id, perm, lower, upper)
+    return _bottom_up(levels, next_id, order[0].copy(), lower, upper)
 
 
 def _bottom_up(levels, nodes: int, perm: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> BoxTree:

@@ -12,7 +12,7 @@ import warp as wp
 from kernels.integrator import LIGHT_SAMPLINGS, RR_RULES, SAMPLERS, TRIANGLES, VIEWS, Features
 from kernels.bsdfs import DISTRIBUTIONS
 from kernels.types import CameraData, SceneData
-from kernels.triangle import STACK_SIZE
+from kernels.triangle import STACK_SIZE, STACK_SLACK
 from pathtracer.bvh import BoxTree, WideTree, build_tree, collapse_wide, leaf_lanes
 from pathtracer.errors import RenderError
 from pathtracer.microfacet_tables import external_transmittance, internal_reflectance
@@ -228,9 +228,9 @@ class TriangleData:
         elif len(faces):
             self.box_pad = triangle_box_pad(points, camera_origin)
             self.tree = collapse_wide(_triangle_tree(np.asarray(points), faces, self.box_pad))
-            if self.tree.stack_bound >= STACK_SIZE:
+            if self.tree.stack_bound + STACK_SLACK >= STACK_SIZE:
                 raise RenderError(f"{source}: the triangle tree is too deep for the traversal's stack "
-                                  f"({self.tree.stack_bound} entries, {STACK_SIZE} available)")
+                                  f"({self.tree.stack_bound} + {STACK_SLACK} entries, {STACK_SIZE} available)")
             d.bvh_root = self.tree.root
         t = self.tree
         d.bvh_boxes = wp.array(t.boxes if t else np.zeros((0, 4), np.float32), dtype=wp.vec4, device=device)
