@@ -156,15 +156,24 @@ def edge_fallback(e: wp.vec4, ax: wp.vec4, ay: wp.vec4, bx: wp.vec4, by: wp.vec4
     return out
 
 
+@wp.struct
+class FourHits:
+    """Four triangles' hits, before the division by the determinant."""
+
+    t: wp.vec4  # t |det| per lane, -1 where the lane is missed in 0 <= t < tmax
+    det: wp.vec4  # |det|
+    u: wp.vec4  # the edge functions weighting corners a and b, up to the sign of det
+    v: wp.vec4
+
+
 @wp.func
-def closest_of_four(r: RayShear, o_k: wp.vec3, akx: wp.vec4, aky: wp.vec4, akz: wp.vec4, bkx: wp.vec4,
-                    bky: wp.vec4, bkz: wp.vec4, ckx: wp.vec4, cky: wp.vec4, ckz: wp.vec4, tmax: float) -> LeafHit:
+def four_hits(r: RayShear, o_k: wp.vec3, akx: wp.vec4, aky: wp.vec4, akz: wp.vec4, bkx: wp.vec4, bky: wp.vec4,
+              bkz: wp.vec4, ckx: wp.vec4, cky: wp.vec4, ckz: wp.vec4, tmax: float) -> FourHits:
     """The watertight test (Woop, Benthin and Wald) on four triangles at once: corner coordinates along the ray's
     permuted axes kx, ky, kz (``o_k`` the origin's), one triangle per lane, NaN in unused lanes (every comparison
-    rejects them), so the shear and the edge functions are four-wide operations. The nearest hit in
-    0 <= t < tmax: ``lane`` -1 if none; u, v weight corners a and b. Either side counts; a degenerate (zero-area)
-    triangle is never hit. t = 0 counts, as in Warp's test: a ray spawned exactly on a cube's edge, offset along one
-    face's normal, starts in the adjacent face's plane, and must not leave through that face."""
+    rejects them), so the shear and the edge functions are four-wide operations. Either side counts; a degenerate
+    (zero-area) triangle is never hit. t = 0 counts, as in Warp's test: a ray spawned exactly on a cube's edge,
+    offset along one face's normal, starts in the adjacent face's plane, and must not leave through that face."""
     okx = wp.vec4(o_k[0])
     oky = wp.vec4(o_k[1])
     okz = wp.vec4(o_k[2])
@@ -190,7 +199,7 @@ def closest_of_four(r: RayShear, o_k: wp.vec3, akx: wp.vec4, aky: wp.vec4, akz: 
     T = wp.cw_mul(U, az * r.s[2]) + wp.cw_mul(V, bz * r.s[2]) + wp.cw_mul(W, cz * r.s[2])
     det = U + V + W
     # per lane: a miss if the edge functions have both signs, or det = 0, or t outside [0, tmax) (NaN fails both)
-    t4 = wp.vec4()
+    out = FourHits()
     for k in range(4):
         u = U[k]
         v = V[k]
@@ -203,20 +212,51 @@ def closest_of_four(r: RayShear, o_k: wp.vec3, akx: wp.vec4, aky: wp.vec4, akz: 
         tk = wp.where(det[k] < 0.0, -T[k], T[k])
         tk = wp.where(lo < 0.0, wp.where(hi > 0.0, -1.0, tk), tk)
         tk = wp.where(tk < tmax * dk, tk, -1.0)
-        tk = wp.where(dk == 0.0, -1.0, tk)
-        t4[k] = wp.where(tk >= 0.0, tk / dk, BIG)
-    best = LeafHit()
-    best.lane = -1
-    best.t = tmax
+        out.t[k] = wp.where(dk == 0.0, -1.0, tk)
+        out.det[k] = dk
+    out.u = U
+    out.v = V
+    return out
+
+
+@wp.func
+def closest_of_four(r: RayShear, o_k: wp.vec3, akx: wp.vec4, aky: wp.vec4, akz: wp.vec4, bkx: wp.vec4,
+                    bky: wp.vec4, bkz: wp.vec4, ckx: wp.vec4, cky: wp.vec4, ckz: wp.vec4, tmax: float) -> LeafHit:
+    """The nearest of ``four_hits`` in 0 <= t < tmax: ``lane`` -1 if none; u, v weight corners a and b."""
+    f = four_hits(r, o_k, akx, aky, akz, bkx, bky, bkz, ckx, cky, ckz, tmax)
+    t4 = wp.vec4()
     for k in range(4):
-        if t4[k] < best.t:
-            best.lane = k
-            best.t = t4[k]
+        t4[k] = wp.where(f.t[k] >= 0.0, f.t[k] / f.det[k], BIG)
+    best = LeafHit()
+    nearest = wp.where(t4[1] < t4[0], t4[1], t4[0])
+    nearest = wp.where(t4[2] < nearest, t4[2], nearest)
+    nearest = wp.where(t4[3] < nearest, t4[3], nearest)
+    best.lane = -1
+    for k in range(3, -1, -1):  # the first lane of the nearest hit, by selects (a branch per lane mispredicts)
+        best.lane = wp.where(t4[k] == nearest, k, best.lane)
+    best.lane = wp.where(nearest < tmax, best.lane, -1)
+    best.t = wp.where(nearest < tmax, nearest, tmax)
     if best.lane >= 0:
-        inv = 1.0 / wp.abs(det[best.lane])
-        best.u = wp.abs(U[best.lane]) * inv
-        best.v = wp.abs(V[best.lane]) * inv
+        inv = 1.0 / f.det[best.lane]
+        best.u = wp.abs(f.u[best.lane]) * inv
+        best.v = wp.abs(f.v[best.lane]) * inv
     return best
+
+
+@wp.func
+def leaf_any(scene: SceneData, leaf: int, o: wp.vec3, r: RayShear, tmax: float) -> bool:
+    """Does the ray hit any of leaf block ``leaf``'s triangles in 0 <= t < tmax? (``four_hits`` without the
+    division or the nearest lane.)"""
+    base = 9 * leaf
+    f = four_hits(r, wp.vec3(o[r.kx], o[r.ky], o[r.kz]),
+                  scene.tri_soa[base + r.kx], scene.tri_soa[base + r.ky], scene.tri_soa[base + r.kz],
+                  scene.tri_soa[base + 3 + r.kx], scene.tri_soa[base + 3 + r.ky], scene.tri_soa[base + 3 + r.kz],
+                  scene.tri_soa[base + 6 + r.kx], scene.tri_soa[base + 6 + r.ky], scene.tri_soa[base + 6 + r.kz],
+                  tmax)
+    hits = int(0)
+    for k in range(4):
+        hits += wp.where(f.t[k] >= 0.0, 1, 0)
+    return hits > 0
 
 
 @wp.func
@@ -348,6 +388,6 @@ def mesh_occluded(scene: SceneData, o: wp.vec3, d: wp.vec3, tmax: float) -> bool
                 stack_node[sp] = c4[k]
                 sp += wp.where(t4[k] < BIG, 1, 0)
         elif ref != -1:  # -1: an empty tree
-            if leaf_closest(scene, leaf_index(ref), o, r, tmax).lane >= 0:
+            if leaf_any(scene, leaf_index(ref), o, r, tmax):
                 return True
     return False
