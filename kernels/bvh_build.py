@@ -79,7 +79,7 @@ def sah_sweep(
     order: wp.array(dtype=wp.int32),  # box indices, each range sorted along one axis
     lower: wp.array(dtype=wp.vec3),
     upper: wp.array(dtype=wp.vec3),
-    starts: wp.array(dtype=wp.int32),  # one range per thread, at least 2 boxes
+    starts: wp.array(dtype=wp.int32),  # one range per thread (its first entry in order), at least 2 boxes
     sizes: wp.array(dtype=wp.int32),
     block: int,  # boxes per leaf block
     scratch: wp.array(dtype=wp.float64),  # as long as order: the left sides' areas
