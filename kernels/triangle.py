@@ -289,6 +289,43 @@ def ray_triangle(o: wp.vec3, r: RayShear, a: wp.vec3, b: wp.vec3, c: wp.vec3, tm
     return wp.vec3(h.t, h.u, h.v)
 
 
+PREFETCH = """
+#if !defined(__CUDA_ARCH__)
+__builtin_prefetch(&a.data[i]);
+#endif
+"""
+
+
+@wp.func_native(PREFETCH)
+def prefetch4(a: wp.array(dtype=wp.vec4), i: int):
+    """A hint to the CPU to start loading ``a[i]``'s cache line (nothing on CUDA); never faults."""
+    ...
+
+
+@wp.func_native(PREFETCH)
+def prefetch4i(a: wp.array(dtype=wp.vec4i), i: int):
+    """``prefetch4`` for an int vector array."""
+    ...
+
+
+@wp.func
+def prefetch_ref(scene: SceneData, ref: int):
+    """Start loading what visiting ``ref`` reads: an inner node's two lines of boxes and its child references, or
+    a leaf block's three lines of triangles. Both kinds are asked for, with the index of the kind ``ref`` is not
+    clamped to 0, so no branch decides (a mispredicted branch would cost more than the wasted hints)."""
+    inner = wp.where(ref >= 0, ref, 0)
+    prefetch4(scene.bvh_boxes, 6 * inner)
+    prefetch4(scene.bvh_boxes, 6 * inner + 5)
+    prefetch4i(scene.bvh_child, inner)
+    leaf = wp.where(ref <= -2, 9 * (-2 - ref), 0)
+    prefetch4(scene.tri_soa, leaf)
+    prefetch4(scene.tri_soa, leaf + 4)
+    prefetch4(scene.tri_soa, leaf + 8)
+
+
+PREFETCH_NEAREST = 2  # children whose data a node asks for as it pushes them (the ones popped next)
+
+
 @wp.struct
 class Children:
     t: wp.vec4
@@ -325,7 +362,10 @@ def mesh_closest(scene: SceneData, o: wp.vec3, d: wp.vec3, tmax: float) -> TriHi
     is popped next. Every step is the same straight-line code whatever the node holds: the sort is a
     five-comparator network of selects, and the push writes all four slots above the top (those beyond the hit
     children are garbage the next pushes overwrite) and raises the top by the hit count. On the bunny's random
-    rays that ran 11% faster than branching on the hit count, entering a single hit child without a push.
+    rays that ran 11% faster than branching on the hit count, entering a single hit child without a push (the
+    teapot scene's camera rays, which a branch predictor follows, ran a fifth slower; its renders took the same
+    time). The node then asks the CPU for the data of the two nearest children it pushed (``prefetch_ref``), so
+    their loads overlap this node's work: 16% faster again on the bunny.
     """
     r = ray_shear(d)
     rb = ray_boxes(o, r)
@@ -356,6 +396,8 @@ def mesh_closest(scene: SceneData, o: wp.vec3, d: wp.vec3, tmax: float) -> TriHi
                     stack_node[sp + j] = s.c[k]
                     stack_t[sp + j] = s.t[k]
                 sp += hits
+                for k in range(PREFETCH_NEAREST):  # on the bunny's random rays, 16% faster
+                    prefetch_ref(scene, s.c[k])
             else:
                 leaf = leaf_index(ref)
                 h = leaf_closest(scene, leaf, o, r, best.t)
