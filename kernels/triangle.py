@@ -311,8 +311,8 @@ def prefetch4i(a: wp.array(dtype=wp.vec4i), i: int):
 @wp.func
 def prefetch_ref(scene: SceneData, ref: int):
     """Start loading what visiting ``ref`` reads: an inner node's two lines of boxes and its child references, or
-    a leaf block's three lines of triangles. Both kinds are asked for, with the index of the kind ``ref`` is not
-    clamped to 0, so no branch decides (a mispredicted branch would cost more than the wasted hints)."""
+    a leaf block's three lines of triangles. Both kinds are asked for, the index of the kind ``ref`` is not
+    clamped to 0, so that no branch decides (a mispredicted branch would cost more than the wasted hints)."""
     inner = wp.where(ref >= 0, ref, 0)
     prefetch4(scene.bvh_boxes, 6 * inner)
     prefetch4(scene.bvh_boxes, 6 * inner + 5)

@@ -261,6 +261,22 @@ def probe_shadow(
 
 
 @wp.kernel(enable_backward=False)
+def probe_occluded(
+    scene: SceneData,
+    o: wp.array(dtype=wp.vec3),
+    d: wp.array(dtype=wp.vec3),
+    tmax: wp.array(dtype=float),
+    out_occluded: wp.array(dtype=wp.int32),
+    out_t: wp.array(dtype=float),
+):
+    """The shadow-ray query within tmax, next to the nearest hit's distance (-1 if none) of the same ray."""
+    i = wp.tid()
+    out_occluded[i] = wp.where(mesh_occluded(scene, o[i], d[i], tmax[i]), 1, 0)
+    q = mesh_closest(scene, o[i], d[i], INF)
+    out_t[i] = wp.where(q.face >= 0, q.t, -1.0)
+
+
+@wp.kernel(enable_backward=False)
 def probe_ray_box(
     o: wp.array(dtype=wp.vec3d),
     d: wp.array(dtype=wp.vec3d),

@@ -150,3 +150,42 @@ def test_morton_tree_cuts_between_clusters():
     a = tree.start[0]
     sizes = sorted(int(np.sum(tree.count[_subtree(tree, k)])) for k in (a, a + 1))
     assert sizes == [300, 500]
+
+
+def test_sah_sweep_finds_the_cheapest_cut_in_leaf_blocks():
+    """kernels/bvh_build.py sah_sweep against every cut of each range, costed in numpy: area(left) x blocks(left) +
+    area(right) x blocks(right), blocks = ceil(boxes / 4); ties may go to any of the cheapest cuts."""
+    import warp as wp
+
+    from kernels.bvh_build import sah_sweep
+    from pathtracer.warp_setup import init_warp
+
+    init_warp()
+    rng = np.random.default_rng(3)
+    sizes = np.array([2, 3, 5, 8, 9, 17, 40, 200])
+    starts = np.cumsum(sizes) - sizes
+    n = int(sizes.sum())
+    c = rng.normal(size=(n, 3)) * np.array([3.0, 1.0, 0.3])
+    ext = rng.uniform(0.01, 0.5, (n, 3))
+    lower, upper = (c - ext).astype(np.float32), (c + ext).astype(np.float32)
+    order = np.concatenate([s + np.argsort(c[s:s + m, 0]) for s, m in zip(starts, sizes)]).astype(np.int32)
+    cost = wp.zeros(len(sizes), dtype=wp.float64, device="cpu")
+    cut = wp.zeros(len(sizes), dtype=wp.int32, device="cpu")
+    wp.launch(sah_sweep, dim=len(sizes), device="cpu",
+              inputs=[wp.array(order, dtype=wp.int32, device="cpu"), wp.array(lower, dtype=wp.vec3, device="cpu"),
+                      wp.array(upper, dtype=wp.vec3, device="cpu"), wp.array(starts.astype(np.int32), dtype=wp.int32,
+                                                                               device="cpu"),
+                      wp.array(sizes.astype(np.int32), dtype=wp.int32, device="cpu"), 4,
+                      wp.zeros(n, dtype=wp.float64, device="cpu")], outputs=[cost, cut])
+    cost, cut = cost.numpy(), cut.numpy()
+
+    def area(ids):
+        e = upper[ids].astype(np.float64).max(axis=0) - lower[ids].astype(np.float64).min(axis=0)
+        return e[0] * e[1] + e[1] * e[2] + e[2] * e[0]
+
+    for j, (s, m) in enumerate(zip(starts, sizes)):
+        ids = order[s:s + m]
+        costs = np.array([area(ids[:k]) * np.ceil(k / 4) + area(ids[k:]) * np.ceil((m - k) / 4) for k in range(1, m)])
+        assert 1 <= cut[j] < m
+        assert costs[cut[j] - 1] <= costs.min() * (1 + 1e-9)
+        assert abs(cost[j] - costs.min()) <= 1e-6 * costs.min()

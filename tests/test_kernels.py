@@ -688,6 +688,35 @@ def test_mesh_hit_random_soup(device, triangles):
 
 
 @pytest.mark.parametrize("triangles", TRIANGLES)
+def test_mesh_occluded_agrees_with_the_nearest_hit(device, triangles):
+    """A shadow ray within tmax is blocked exactly when the nearest hit is closer than tmax (the wide tree's any-hit
+    traversal and leaf test, ``leaf_any``, differ from the closest-hit ones); tmax drawn around the nearest hit,
+    rays within 1e-5 of it left out (the two compare t at different roundings there)."""
+    rng = np.random.default_rng(5)
+    nt = 2000
+    centers = rng.uniform(-1, 1, (nt, 3))
+    verts = (centers[:, None, :] + rng.normal(size=(nt, 3, 3)) * 0.1).reshape(-1, 3).astype(np.float32)
+    faces = np.arange(3 * nt).reshape(nt, 3)
+    n = 20000
+    o = (unit(rng.normal(size=(n, 3))) * 3).astype(np.float32)
+    d = f32unit(rng.uniform(-1, 1, (n, 3)) - o)
+    ds = DeviceScene(_mesh_scene(verts, faces), device, triangles)
+    near = probes.launch(probes.probe_mesh, n, device, [ds.data, probes.arr(o, wp.vec3, device),
+                                                        probes.arr(d, wp.vec3, device)],
+                         [wp.int32, float, wp.vec2, wp.vec3, wp.vec3, wp.vec3])[1]
+    hit = near > 0
+    tmax = np.where(hit, near * rng.uniform(0.5, 1.5, n), rng.uniform(0.1, 10.0, n)).astype(np.float32)
+    occluded, t = probes.launch(probes.probe_occluded, n, device,
+                                [ds.data, probes.arr(o, wp.vec3, device), probes.arr(d, wp.vec3, device),
+                                 probes.arr(tmax, float, device)], [wp.int32, float])
+    assert np.array_equal(t, near)
+    clear = ~hit | (np.abs(near - tmax) > 1e-5 * tmax)
+    expect = hit & (near < tmax)
+    assert 0.2 < expect.mean() < 0.8 and clear.mean() > 0.99
+    assert np.array_equal(occluded[clear] == 1, expect[clear])
+
+
+@pytest.mark.parametrize("triangles", TRIANGLES)
 def test_mesh_hit_teapot(device, triangles):
     m = trimesh.load(ROOT / "scenes" / "meshes" / "teapot.obj", process=False, force="mesh")
     verts, faces = np.asarray(m.vertices, np.float32), np.asarray(m.faces)
