@@ -1,5 +1,6 @@
-"""Triangle meshes from OBJ and PLY files (read by trimesh; the common OBJ here, without importing it), Mitsuba's
-``serialized`` files (read here: zlib and a fixed binary layout), and Mitsuba's vertex-normal recomputation.
+"""Triangle meshes from OBJ and PLY files (read by trimesh; the common OBJ and binary PLY here, without importing
+it), Mitsuba's ``serialized`` files (read here: zlib and a fixed binary layout), and Mitsuba's vertex-normal
+recomputation.
 
 ``read_mesh`` returns the file's geometry in object space, one :class:`MeshPart` per trimesh
 geometry (an OBJ with several materials or objects gives several), each with the file's vertex
@@ -194,9 +195,78 @@ def read_simple_obj(data: bytes) -> list[MeshPart] | None:
     return [MeshPart(vertices, faces, normals, None)]
 
 
+_PLY_SCALARS = {b"float": "f4", b"float32": "f4", b"double": "f8", b"float64": "f8"}
+_PLY_COUNTS = {b"uchar": "u1", b"uint8": "u1"}
+_PLY_INDICES = {b"int": "i4", b"int32": "i4", b"uint": "u4", b"uint32": "u4"}
+_PLY_FORMATS = {b"binary_little_endian": "<", b"binary_big_endian": ">"}
+_PLY_VERTEX = ({b"x", b"y", b"z"}, {b"x", b"y", b"z", b"nx", b"ny", b"nz"})
+
+
+def read_simple_ply(data: bytes) -> list[MeshPart] | None:
+    """The common binary PLY, read here with numpy: one ``vertex`` element of float or double ``x y z`` and
+    optionally ``nx ny nz``, then one ``face`` element whose only property is a ``uchar`` count and ``int`` or
+    ``uint`` ``vertex_indices`` (or ``vertex_index``), every face a triangle or every face a quad. None for anything
+    else (ASCII, colours, texture coordinates, other elements, mixed polygons, ...): trimesh reads those, and both
+    paths give the same arrays (tests/test_loader.py compares them). Importing trimesh costs about a second."""
+    end = data.find(b"end_header")
+    if not data.startswith(b"ply") or end < 0:
+        return None
+    body = end + len(b"end_header")
+    if data[body:body + 2] == b"\r\n":
+        body += 2
+    elif data[body:body + 1] == b"\n":
+        body += 1
+    else:
+        return None
+    lines = [ln.split() for ln in data[:end].splitlines()[1:]]
+    lines = [ln for ln in lines if ln and ln[0] not in (b"comment", b"obj_info")]
+    if not lines or len(lines[0]) != 3 or lines[0][0] != b"format" or lines[0][2] != b"1.0":
+        return None
+    order = _PLY_FORMATS.get(lines[0][1])
+    if order is None:
+        return None
+    elements = []
+    for ln in lines[1:]:
+        if ln[0] == b"element" and len(ln) == 3 and ln[2].isdigit():
+            elements.append((ln[1], int(ln[2]), []))
+        elif ln[0] == b"property" and elements:
+            elements[-1][2].append(ln[1:])
+        else:
+            return None
+    if [e[0] for e in elements] != [b"vertex", b"face"]:
+        return None
+    (_, nv, vprops), (_, nf, fprops) = elements
+    if any(len(p) != 2 or p[0] not in _PLY_SCALARS for p in vprops):
+        return None
+    names = [p[1] for p in vprops]
+    if len(set(names)) != len(names) or set(names) not in _PLY_VERTEX:
+        return None
+    if (len(fprops) != 1 or len(fprops[0]) != 4 or fprops[0][0] != b"list" or fprops[0][1] not in _PLY_COUNTS
+            or fprops[0][2] not in _PLY_INDICES or fprops[0][3] not in (b"vertex_indices", b"vertex_index")):
+        return None
+    vdtype = np.dtype([(n.decode(), order + _PLY_SCALARS[t]) for t, n in vprops])
+    vbytes = nv * vdtype.itemsize
+    if nv == 0 or nf == 0 or len(data) < body + vbytes + 1:
+        return None
+    first = data[body + vbytes]  # every face's count must be this one (3 or 4)
+    if first not in (3, 4):
+        return None
+    fdtype = np.dtype([("n", "u1"), ("i", order + _PLY_INDICES[fprops[0][2]], (first,))])
+    if len(data) != body + vbytes + nf * fdtype.itemsize:
+        return None  # mixed polygon sizes, or trailing bytes
+    vert = np.frombuffer(data, vdtype, nv, body)
+    face = np.frombuffer(data, fdtype, nf, body + vbytes)
+    if np.any(face["n"] != first):
+        return None
+    kw = {"vertices": np.column_stack([vert[a] for a in "xyz"]), "faces": face["i"]}
+    if "nx" in vdtype.names:
+        kw["vertex_normals"] = np.column_stack([vert[a] for a in ("nx", "ny", "nz")])
+    return _parts_from_kwargs([kw])
+
+
 def read_mesh(path: Path, kind: str) -> list[MeshPart]:
-    """Read an ``obj`` or ``ply`` file: the common OBJ here (:func:`read_simple_obj`), everything else with trimesh
-    (no merging or reordering of vertices)."""
+    """Read an ``obj`` or ``ply`` file: the common OBJ and binary PLY here (:func:`read_simple_obj`,
+    :func:`read_simple_ply`), everything else with trimesh (no merging or reordering of vertices)."""
     try:
         data = Path(path).read_bytes()
     except OSError as e:
@@ -205,7 +275,7 @@ def read_mesh(path: Path, kind: str) -> list[MeshPart]:
         raise MeshFileError("is empty")
     if kind == "obj" and b"\0" in data:
         raise MeshFileError("is binary data, not a text OBJ file")
-    parts = read_simple_obj(data) if kind == "obj" else None
+    parts = read_simple_obj(data) if kind == "obj" else read_simple_ply(data) if kind == "ply" else None
     if parts is None:
         parts = read_with_trimesh(data, kind)
     _check_parts(parts)

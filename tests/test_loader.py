@@ -987,6 +987,93 @@ def test_loading_the_teapot_scene_does_not_import_trimesh():
     assert r.stdout.strip().splitlines()[-1] == "False"
 
 
+def _ply(vprops=(("float", "x"), ("float", "y"), ("float", "z")), verts=None, faces=None, fmt="<", count="uchar",
+         index="int", index_name="vertex_indices", head=b"", nl=b"\n", tail=b"", extra=b""):
+    """A binary PLY written by hand: a triangle-and-quad-free tetrahedron unless told otherwise."""
+    verts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float) if verts is None else np.asarray(verts)
+    faces = [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]] if faces is None else faces
+    types = {"float": "f4", "double": "f8", "uchar": "u1", "int": "i4", "uint": "u4", "short": "i2"}
+    name = "binary_little_endian" if fmt == "<" else "binary_big_endian"
+    header = [b"ply", f"format {name} 1.0".encode()] + ([head] if head else []) + [f"element vertex {len(verts)}".encode()]
+    header += [f"property {t} {n}".encode() for t, n in vprops] + [f"element face {len(faces)}".encode(),
+                                                                     f"property list {count} {index} {index_name}".encode()]
+    header = nl.join(header + ([extra] if extra else []) + [b"end_header"]) + nl
+    vdt = np.dtype([(n, fmt + types[t]) for t, n in vprops])
+    v = np.zeros(len(verts), vdt)
+    for k, (_, n) in enumerate(vprops):
+        v[n] = verts[:, k] if k < verts.shape[1] else 0.5 + k
+    body = v.tobytes()
+    for f in faces:
+        body += np.array([len(f)], fmt + types[count]).tobytes() + np.array(f, fmt + types[index]).tobytes()
+    return header + body + tail
+
+
+NORMALS = (("float", "x"), ("float", "y"), ("float", "z"), ("float", "nx"), ("float", "ny"), ("float", "nz"))
+SIMPLE_PLYS = {
+    "triangles": _ply(),
+    "normals": _ply(NORMALS, verts=np.array([[0, 0, 0, 0, 0, 1], [1, 0, 0, 0, 1, 0], [0, 1, 0, 1, 0, 0],
+                                             [0, 0, 1, 1, 1, 1]], float)),
+    "double, big-endian, uint": _ply((("double", "x"), ("double", "y"), ("double", "z")), fmt=">", index="uint"),
+    "vertex_index, comments, CRLF": _ply(index_name="vertex_index", head=b"comment made by hand", nl=b"\r\n"),
+    "quads": _ply(verts=np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1]], float),
+                  faces=[[0, 1, 2, 3], [0, 1, 4, 3]]),
+}
+
+
+def _icosphere_ply():
+    import trimesh
+
+    return trimesh.exchange.ply.export_ply(trimesh.creation.icosphere(subdivisions=3), encoding="binary")
+
+
+@pytest.mark.parametrize("name", [*SIMPLE_PLYS, "icosphere (trimesh's export)"])
+def test_simple_ply_reader_gives_trimesh_arrays(name):
+    """The binary PLY files read without trimesh give exactly trimesh's arrays (positions, faces, normals)."""
+    data = SIMPLE_PLYS[name] if name in SIMPLE_PLYS else _icosphere_ply()
+    ours, theirs = meshio.read_simple_ply(data), meshio.read_with_trimesh(data, "ply")
+    assert ours is not None and len(ours) == len(theirs) == 1
+    a, b = ours[0], theirs[0]
+    np.testing.assert_array_equal(a.vertices, b.vertices)
+    np.testing.assert_array_equal(a.faces, b.faces)
+    assert (a.normals is None) == (b.normals is None)
+    if a.normals is not None:
+        np.testing.assert_array_equal(a.normals, b.normals)
+    assert a.uv is None and b.uv is None
+
+
+@pytest.mark.parametrize("data", [
+    _ply().replace(b"binary_little_endian", b"ascii", 1),
+    _ply((("float", "x"), ("float", "y"), ("float", "z"), ("uchar", "red"))),
+    _ply((("float", "x"), ("float", "y"), ("float", "z"), ("float", "u"), ("float", "v"))),
+    _ply((("float", "x"), ("float", "y"))),
+    _ply(faces=[[0, 2, 1], [0, 1, 3, 2]]),
+    _ply(faces=[[0, 2, 1], [0, 1], [0, 1, 3, 2]]),  # as many bytes as three triangles
+    _ply(count="int"),
+    _ply(index="short"),
+    _ply(index_name="vertex_ids"),
+    _ply(tail=b"\0"),
+    _ply(extra=b"element edge 0\nproperty int vertex1"),
+    _ply(faces=[]),
+    _ply()[:-3],
+    b"not a ply at all",
+])
+def test_simple_ply_reader_leaves_everything_else_to_trimesh(data):
+    assert meshio.read_simple_ply(data) is None
+
+
+def test_loading_a_binary_ply_scene_does_not_import_trimesh(tmp_path):
+    """As for the teapot's OBJ: trimesh's import was about a second of every process with a PLY mesh."""
+    import subprocess
+    import sys
+
+    (tmp_path / "m.ply").write_bytes(SIMPLE_PLYS["normals"])
+    p = write(tmp_path, scene_xml('<shape type="ply"><string name="filename" value="m.ply"/></shape>'))
+    code = ("import sys, pathtracer; s = pathtracer.load_file(sys.argv[1]); "
+            "print(len(s.meshes[0].faces), 'trimesh' in sys.modules)")
+    r = subprocess.run([sys.executable, "-c", code, str(p)], capture_output=True, text=True, check=True)
+    assert r.stdout.strip().splitlines()[-1] == "4 False"
+
+
 def test_shared_bunny_ply_with_body_comments_is_rejected(tmp_path):
     """data/meshes/bunny_res4.ply has 'comment' lines among its faces: Mitsuba refuses it too."""
     bunny = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes" / "bunny_res4.ply"
