@@ -367,6 +367,6 @@ class Scene:
     def extent(self) -> float:
         """Largest absolute world coordinate of any geometry or the camera (scale for ray offsets)."""
         parts = [np.abs(self.camera.to_world[:3, 3])]
-        parts += [np.abs(m.vertices).max(axis=0) for m in self.meshes if len(m.vertices)]
+        parts += [np.abs(m.vertices).max() for m in self.meshes if len(m.vertices)]  # (axis-0 max: 15x slower)
         parts += [np.abs(s.center) + s.radius for s in self.spheres]
         return float(np.max(np.concatenate([np.atleast_1d(p) for p in parts])))
