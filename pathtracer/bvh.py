@@ -211,25 +211,27 @@ def build_box_tree(lower: np.ndarray, upper: np.ndarray, leaf_size: int = LEAF_S
 
 def _bottom_up(levels, nodes: int, perm: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> BoxTree:
     """The node arrays from the planned splits (per level: node ids, range starts and sizes, first children):
-    leaf boxes from their primitives, inner boxes from their children, deepest level first."""
+    leaf boxes from their primitives, inner boxes from their children, deepest level first.
+
+    The leaves of all levels together tile the primitives' positions, so one ``reduceat`` per axis over the
+    permuted boxes gives every leaf's box (per axis on contiguous columns: numpy's axis-0 reductions of (n, 3)
+    arrays run many times slower)."""
     lo = np.full((nodes, 3), np.inf, dtype=np.float32)
     hi = np.full((nodes, 3), -np.inf, dtype=np.float32)
     start = np.zeros(nodes, dtype=np.int32)
     count = np.zeros(nodes, dtype=np.int32)
-    plo, phi = lower[perm], upper[perm]
-    for lv_ids, lv_starts, lv_sizes, lv_children in reversed(levels):  # deepest first: children before parents
-        leaf = lv_children < 0
-        if leaf.any():
-            li, ls, lz = lv_ids[leaf], lv_starts[leaf], lv_sizes[leaf]
-            order = np.argsort(ls)  # reduceat wants increasing, non-overlapping ranges
-            li, ls, lz = li[order], ls[order], lz[order]
-            pos, _ = _ranges(ls, lz)
-            offsets = np.cumsum(lz) - lz
-            lo[li] = np.minimum.reduceat(plo[pos], offsets, axis=0)
-            hi[li] = np.maximum.reduceat(phi[pos], offsets, axis=0)
-            start[li] = ls
-            count[li] = lz
-        ii, cc = lv_ids[~leaf], lv_children[~leaf]
+    leaf_of = [(ids[ch < 0], st[ch < 0], sz[ch < 0]) for ids, st, sz, ch in levels]
+    li, ls, lz = (np.concatenate([lv[k] for lv in leaf_of]) for k in range(3))
+    order = np.argsort(ls)
+    li, ls, lz = li[order], ls[order], lz[order]
+    for axis in range(3):
+        lo[li, axis] = np.minimum.reduceat(np.ascontiguousarray(lower[perm, axis]), ls)
+        hi[li, axis] = np.maximum.reduceat(np.ascontiguousarray(upper[perm, axis]), ls)
+    start[li] = ls
+    count[li] = lz
+    for lv_ids, _, _, lv_children in reversed(levels):  # deepest first: children before parents
+        inner = lv_children >= 0
+        ii, cc = lv_ids[inner], lv_children[inner]
         if len(ii):
             lo[ii] = np.minimum(lo[cc], lo[cc + 1])
             hi[ii] = np.maximum(hi[cc], hi[cc + 1])
