@@ -220,10 +220,8 @@ def four_hits(r: RayShear, o_k: wp.vec3, akx: wp.vec4, aky: wp.vec4, akz: wp.vec
 
 
 @wp.func
-def closest_of_four(r: RayShear, o_k: wp.vec3, akx: wp.vec4, aky: wp.vec4, akz: wp.vec4, bkx: wp.vec4,
-                    bky: wp.vec4, bkz: wp.vec4, ckx: wp.vec4, cky: wp.vec4, ckz: wp.vec4, tmax: float) -> LeafHit:
-    """The nearest of ``four_hits`` in 0 <= t < tmax: ``lane`` -1 if none; u, v weight corners a and b."""
-    f = four_hits(r, o_k, akx, aky, akz, bkx, bky, bkz, ckx, cky, ckz, tmax)
+def nearest_of_four(f: FourHits, tmax: float) -> LeafHit:
+    """The nearest of ``four_hits``' lanes in 0 <= t < tmax: ``lane`` -1 if none; u, v weight corners a and b."""
     t4 = wp.vec4()
     for k in range(4):
         t4[k] = wp.where(f.t[k] >= 0.0, f.t[k] / f.det[k], BIG)
@@ -244,15 +242,22 @@ def closest_of_four(r: RayShear, o_k: wp.vec3, akx: wp.vec4, aky: wp.vec4, akz: 
 
 
 @wp.func
-def leaf_any(scene: SceneData, leaf: int, o: wp.vec3, r: RayShear, tmax: float) -> bool:
-    """Does the ray hit any of leaf block ``leaf``'s triangles in 0 <= t < tmax? (``four_hits`` without the
-    division or the nearest lane.)"""
+def leaf_hits(scene: SceneData, leaf: int, o: wp.vec3, r: RayShear, tmax: float) -> FourHits:
+    """``four_hits`` on the up to four triangles of one leaf block, which stores each corner's x, y and z of its
+    four triangles as vec4s (``tri_soa[9 leaf + 3 corner + axis]``)."""
     base = 9 * leaf
-    f = four_hits(r, wp.vec3(o[r.kx], o[r.ky], o[r.kz]),
-                  scene.tri_soa[base + r.kx], scene.tri_soa[base + r.ky], scene.tri_soa[base + r.kz],
-                  scene.tri_soa[base + 3 + r.kx], scene.tri_soa[base + 3 + r.ky], scene.tri_soa[base + 3 + r.kz],
-                  scene.tri_soa[base + 6 + r.kx], scene.tri_soa[base + 6 + r.ky], scene.tri_soa[base + 6 + r.kz],
-                  tmax)
+    return four_hits(r, wp.vec3(o[r.kx], o[r.ky], o[r.kz]),
+                     scene.tri_soa[base + r.kx], scene.tri_soa[base + r.ky], scene.tri_soa[base + r.kz],
+                     scene.tri_soa[base + 3 + r.kx], scene.tri_soa[base + 3 + r.ky], scene.tri_soa[base + 3 + r.kz],
+                     scene.tri_soa[base + 6 + r.kx], scene.tri_soa[base + 6 + r.ky], scene.tri_soa[base + 6 + r.kz],
+                     tmax)
+
+
+@wp.func
+def leaf_any(scene: SceneData, leaf: int, o: wp.vec3, r: RayShear, tmax: float) -> bool:
+    """Does the ray hit any of leaf block ``leaf``'s triangles in 0 <= t < tmax? (``leaf_hits`` without the
+    division or the nearest lane.)"""
+    f = leaf_hits(scene, leaf, o, r, tmax)
     hits = int(0)
     for k in range(4):
         hits += wp.where(f.t[k] >= 0.0, 1, 0)
@@ -261,14 +266,8 @@ def leaf_any(scene: SceneData, leaf: int, o: wp.vec3, r: RayShear, tmax: float) 
 
 @wp.func
 def leaf_closest(scene: SceneData, leaf: int, o: wp.vec3, r: RayShear, tmax: float) -> LeafHit:
-    """``closest_of_four`` on the up to four triangles of one leaf block, which stores each corner's x, y and z of
-    its four triangles as vec4s (``tri_soa[9 leaf + 3 corner + axis]``)."""
-    base = 9 * leaf
-    return closest_of_four(r, wp.vec3(o[r.kx], o[r.ky], o[r.kz]),
-                           scene.tri_soa[base + r.kx], scene.tri_soa[base + r.ky], scene.tri_soa[base + r.kz],
-                           scene.tri_soa[base + 3 + r.kx], scene.tri_soa[base + 3 + r.ky],
-                           scene.tri_soa[base + 3 + r.kz], scene.tri_soa[base + 6 + r.kx],
-                           scene.tri_soa[base + 6 + r.ky], scene.tri_soa[base + 6 + r.kz], tmax)
+    """The nearest hit among leaf block ``leaf``'s triangles in 0 <= t < tmax (``nearest_of_four``)."""
+    return nearest_of_four(leaf_hits(scene, leaf, o, r, tmax), tmax)
 
 
 @wp.func
@@ -280,10 +279,11 @@ def lane0(x: float) -> wp.vec4:
 @wp.func
 def ray_triangle(o: wp.vec3, r: RayShear, a: wp.vec3, b: wp.vec3, c: wp.vec3, tmax: float) -> wp.vec3:
     """(t, u, v) of the hit of ray o + t d (the ``RayShear`` of d) with triangle abc in 0 <= t < tmax; t = -1 on a
-    miss: ``closest_of_four`` with the triangle in lane 0 (the leaves' own arithmetic, for tests of one triangle)."""
-    h = closest_of_four(r, wp.vec3(o[r.kx], o[r.ky], o[r.kz]), lane0(a[r.kx]), lane0(a[r.ky]), lane0(a[r.kz]),
-                        lane0(b[r.kx]), lane0(b[r.ky]), lane0(b[r.kz]), lane0(c[r.kx]), lane0(c[r.ky]),
-                        lane0(c[r.kz]), tmax)
+    miss: the leaves' own arithmetic (``four_hits``, ``nearest_of_four``) with the triangle in lane 0, for tests of one
+    triangle."""
+    f = four_hits(r, wp.vec3(o[r.kx], o[r.ky], o[r.kz]), lane0(a[r.kx]), lane0(a[r.ky]), lane0(a[r.kz]),
+                  lane0(b[r.kx]), lane0(b[r.ky]), lane0(b[r.kz]), lane0(c[r.kx]), lane0(c[r.ky]), lane0(c[r.kz]), tmax)
+    h = nearest_of_four(f, tmax)
     if h.lane < 0:
         return wp.vec3(-1.0, 0.0, 0.0)
     return wp.vec3(h.t, h.u, h.v)
