@@ -941,6 +941,20 @@ SIMPLE_OBJS = {
 }
 
 
+def _assert_trimesh_arrays(ours, data: bytes, kind: str):
+    """``ours`` (one reader's parts) are exactly what trimesh reads from ``data``: one part, the same positions,
+    faces and normals, no uv."""
+    theirs = meshio.read_with_trimesh(data, kind)
+    assert ours is not None and len(ours) == len(theirs) == 1
+    a, b = ours[0], theirs[0]
+    np.testing.assert_array_equal(a.vertices, b.vertices)
+    np.testing.assert_array_equal(a.faces, b.faces)
+    assert (a.normals is None) == (b.normals is None)
+    if a.normals is not None:
+        np.testing.assert_array_equal(a.normals, b.normals)
+    assert a.uv is None and b.uv is None
+
+
 @pytest.mark.parametrize("name", ["teapot.obj", "teapot_6k.obj", "bunny.obj", *SIMPLE_OBJS])
 def test_simple_obj_reader_gives_trimesh_arrays(name):
     """The OBJ files read without trimesh give exactly trimesh's arrays (positions, faces, normals, no uv)."""
@@ -950,15 +964,7 @@ def test_simple_obj_reader_gives_trimesh_arrays(name):
         if not (SHARED_MESHES / name).exists():
             pytest.fail(f"shared data not present: {SHARED_MESHES / name}")
         data = (SHARED_MESHES / name).read_bytes()
-    ours, theirs = meshio.read_simple_obj(data), meshio.read_with_trimesh(data, "obj")
-    assert ours is not None and len(ours) == len(theirs) == 1
-    a, b = ours[0], theirs[0]
-    np.testing.assert_array_equal(a.vertices, b.vertices)
-    np.testing.assert_array_equal(a.faces, b.faces)
-    assert (a.normals is None) == (b.normals is None)
-    if a.normals is not None:
-        np.testing.assert_array_equal(a.normals, b.normals)
-    assert a.uv is None and b.uv is None
+    _assert_trimesh_arrays(meshio.read_simple_obj(data), data, "obj")
 
 
 TRI = b"v 0 0 0\nv 1 0 0\nv 0 1 0\n"
@@ -1030,15 +1036,7 @@ def _icosphere_ply():
 def test_simple_ply_reader_gives_trimesh_arrays(name):
     """The binary PLY files read without trimesh give exactly trimesh's arrays (positions, faces, normals)."""
     data = SIMPLE_PLYS[name] if name in SIMPLE_PLYS else _icosphere_ply()
-    ours, theirs = meshio.read_simple_ply(data), meshio.read_with_trimesh(data, "ply")
-    assert ours is not None and len(ours) == len(theirs) == 1
-    a, b = ours[0], theirs[0]
-    np.testing.assert_array_equal(a.vertices, b.vertices)
-    np.testing.assert_array_equal(a.faces, b.faces)
-    assert (a.normals is None) == (b.normals is None)
-    if a.normals is not None:
-        np.testing.assert_array_equal(a.normals, b.normals)
-    assert a.uv is None and b.uv is None
+    _assert_trimesh_arrays(meshio.read_simple_ply(data), data, "ply")
 
 
 @pytest.mark.parametrize("data", [
