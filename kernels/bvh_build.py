@@ -110,11 +110,10 @@ def sah_sweep(
         p = order[s + j]
         lo = wp.min(lo, wp.vec3d(lower[p]))
         hi = wp.max(hi, wp.vec3d(upper[p]))
-        k = j
-        c = scratch[s + j - 1] * wp.ceil(wp.float64(k) / fb) + box_area(lo, hi) * wp.ceil(wp.float64(m - k) / fb)
-        c = c * (wp.float64(1.0) + wp.float64(1.0e-12) * wp.float64(wp.abs(2 * k - m)))
-        if c < best:
+        c = scratch[s + j - 1] * wp.ceil(wp.float64(j) / fb) + box_area(lo, hi) * wp.ceil(wp.float64(m - j) / fb)
+        c = c * (wp.float64(1.0) + wp.float64(1.0e-12) * wp.float64(wp.abs(2 * j - m)))
+        if c < best:  # j boxes on the left
             best = c
-            best_k = k
+            best_k = j
     cost[r] = best
     cut[r] = best_k

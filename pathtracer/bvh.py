@@ -1,4 +1,5 @@
-"""A bounding volume hierarchy over boxes, built with numpy and Warp for ``kernels/triangle.py``'s nearest-first traversal.
+"""A bounding volume hierarchy over boxes, built with numpy and Warp for ``kernels/triangle.py``'s nearest-first
+traversal.
 
 Why our own: Warp 1.19's ``wp.Bvh`` ray query visits a node's two children in a fixed order, so a closest-hit query
 keeps descending into far subtrees until a hit shrinks its limit; on the mirror teapot that traversal was 60% of the
@@ -182,14 +183,14 @@ def build_box_tree(lower: np.ndarray, upper: np.ndarray, leaf_size: int = LEAF_S
         ends = starts + sizes - 1
         axis = np.argmax(centre[order[:, ends], axes] - centre[order[:, starts], axes], axis=0)  # widest centres
         if level <= SAH_LEVELS:
-            cost = wp.empty(len(sizes), dtype=wp.float64, device="cpu")
-            cut = wp.empty(len(sizes), dtype=wp.int32, device="cpu")
+            cost_wp = wp.empty(len(sizes), dtype=wp.float64, device="cpu")
+            cut_wp = wp.empty(len(sizes), dtype=wp.int32, device="cpu")
             wp.launch(sah_sweep, dim=len(sizes), device="cpu",
                       inputs=[order_wp, lower_wp, upper_wp, wp.array((axis * n + starts).astype(np.int32),
                                                                      dtype=wp.int32, device="cpu"),
                               wp.array(sizes.astype(np.int32), dtype=wp.int32, device="cpu"), leaf_size, scratch],
-                      outputs=[cost, cut])
-            cut = cut.numpy().astype(np.int64)
+                      outputs=[cost_wp, cut_wp])
+            cut = cut_wp.numpy().astype(np.int64)
         else:
             cut = sizes // 2
         chosen = order[axis[seg], pos]
