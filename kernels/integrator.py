@@ -12,8 +12,8 @@ Light samples are uniform in area (weight Le cos_x cos_y / d^2 * area / K), or, 
 "solid_angle", uniform in the solid angle a rectangular light subtends (kernels/sphrect.py; weight
 Le cos_x Omega / K), which removes the cos_y / d^2 variance near a light; non-rectangular parallelograms and points
 where the solid angle is tiny fall back to area sampling.
-With ``light_tracing``, paths camera -> diffuse first hit -> one or more mirrors -> light are left to the light
-tracer (kernels/light_tracer.py): their emission is not counted here (``lt_owned``).
+With ``light_tracing``, paths camera -> diffuse first hit -> any bounces -> one or more mirrors -> light are left to
+the light tracer (kernels/light_tracer.py): their emission is not counted here (``lt_owned``).
 """
 
 from __future__ import annotations
@@ -520,7 +520,8 @@ def make_render_kernel(features: Features):
         origin_normal = wp.vec3(0.0)  # outward normal of that sphere at the origin
         origin_quad = int(-1)  # quad the current ray starts on (it cannot hit that plane again), -1 if none
         rays = wp.int64(0)  # rays traced (counted only in the instrumented variant)
-        # camera -> diffuse first hit -> mirrors -> light: the light tracer's share of path space, when it runs
+        # camera -> diffuse first hit -> any bounces -> mirrors -> light: the light tracer's share of path space,
+        # when it runs
         lt_owned = bool(False)
         mis_pdf = float(0.0)  # > 0: the current ray is a glossy BSDF sample of this density, from prev_p
         prev_p = wp.vec3(0.0)
@@ -776,7 +777,8 @@ def make_render_kernel(features: Features):
                     if kind == MAT_DIFFUSE:
                         wi = sample_cosine_around(ns, u[0], u[1])
                         if wp.static(LIGHT_TRACING):
-                            lt_owned = depth == 0
+                            if depth == 0:
+                                lt_owned = True  # emission after mirrors, from here on: the light tracer's
                     else:
                         if wp.static(BSDF_NEE):
                             bs = sample_bsdf(scene, mat, kind, albedo, d, ns, front, u)

@@ -1,26 +1,33 @@
-"""Light tracing for caustics seen directly: light -> one or more mirrors -> a diffuse point -> the camera.
+"""Light tracing for caustics: light -> one or more mirrors -> any bounces -> a diffuse point -> the camera.
 
 A path tracer finds these paths only when a diffuse bounce happens to reflect off the mirrors into the light (the
-bright speckles on the ceiling of the mirror scenes); a light path finds them whenever it leaves the light towards a
+bright speckles on the walls of the mirror scenes); a light path finds them whenever it leaves the light towards a
 mirror. The two estimators split path space instead of weighting each other: with light tracing on, the integrator
-leaves out emission reached from the camera's first hit (if diffuse) through mirrors alone (``lt_owned`` in
-kernels/integrator.py), and this kernel estimates exactly those paths. Every other path stays the integrator's.
+leaves out emission reached through mirrors on every path whose first hit is diffuse (``lt_owned`` in
+kernels/integrator.py), and this kernel estimates exactly those paths: the light paths that start light -> mirror,
+connected to the camera at each of their diffuse points. Every other path stays the integrator's (a caustic seen in
+a mirror, camera -> mirror -> diffuse -> mirror -> light, cannot be connected to a pinhole from the light's side).
 
 One light path per thread (``n_paths`` per pass):
 - a light chosen uniformly, a point uniform on it, a direction cosine-distributed about its normal: the path
   carries beta = Le |A| pi n_lights (emitted radiance over the density of what was sampled);
-- mirrors reflect it as the integrator does (same sidedness rules, weight = reflectance), at most max_depth - 2 of
-  them (the camera segment and the diffuse bounce are the other two), with roulette after ``rr_depth`` mirrors
-  when the depth is unlimited;
-- a light path whose first hit is diffuse is dropped (next-event estimation covers it); at the first diffuse point x
-  after a mirror, the path is connected to the pinhole and adds to the pixel it projects to
+- a light path whose first hit is diffuse is dropped (next-event estimation covers it);
+- mirrors reflect it as the integrator does (same sidedness rules), with weight rgb |ng . wn| / |ng . wl| (wl towards
+  the light, wn the reflection): reflection about the shading normal keeps solid angle but not the projected solid
+  angle that carries the flux, so the adjoint of the integrator's rule (radiance times rgb) needs that factor;
+- at every diffuse point x after the first mirror the path is connected to the pinhole and adds to the pixel it
+  projects to
 
-      beta (rho / pi) (ns . wi) / |ng . wi| |ng . wc| / (d^2 cos^3(theta_c) A_pixel) / n_paths
+      beta (rho / pi) (ns . wl) / |ng . wl| |ng . wc| / (d^2 cos^3(theta_c) A_pixel) / n_paths
 
-  with wi towards the mirror it came from, wc towards the camera at distance d, theta_c the angle to the optical axis
-  and A_pixel a pixel's area on the film plane at distance 1 (the image is the average radiance over each pixel,
-  box filter). (ns . wi) / |ng . wi| turns the particle's flux measure (geometric cosine) into the integrator's
-  shading cosine; the sidedness tests are the adjoint of the integrator's.
+  with wc towards the camera at distance d, theta_c the angle to the optical axis and A_pixel a pixel's area on the
+  film plane at distance 1 (the image is the average radiance over each pixel, box filter). (ns . wl) / |ng . wl|
+  turns the particle's flux measure (geometric cosine) into the integrator's shading cosine; the sidedness tests are
+  the adjoint of the integrator's;
+- then it bounces on, cosine-distributed about ns, with weight rho (ns . wl) |ng . wn| / (|ng . wl| (ns . wn)) (the
+  adjoint BSDF with shading normals, Veach's thesis 5.3.2);
+- a path has at most max_depth segments counting the camera's, or with unlimited depth roulette after rr_depth
+  bounces on the product of the weights.
 Splats go to one buffer per pass (atomic adds), folded into sums and sums of squares so that the pass-to-pass spread
 of the light-traced part enters the error estimate like the path-traced part's.
 """
@@ -126,8 +133,8 @@ def make_light_kernel(features: Features):
         origin_sphere = int(-1)
         origin_normal = wp.vec3(0.0)
         mirrors = int(0)
-        refl = wp.vec3(1.0)  # the mirrors' product (over the roulette's survival): what roulette keys on
-        max_mirrors = params.max_depth - 2  # camera segment + diffuse bounce + the mirrors <= max_depth
+        segments = int(1)  # light -> the next hit; the camera segment makes a path of segments + 1
+        refl = wp.vec3(1.0)  # the weights' product (over the roulette's survival): what roulette keys on
 
         while True:
             hit = trace(scene, o, d, 3.0e38, origin_quad, origin_sphere, origin_normal)
@@ -142,20 +149,64 @@ def make_light_kernel(features: Features):
             if not front:
                 ng = -ng
                 ns = -ns
-            if scene.mat_kind[mat] != 1:
-                break  # diffuse: connect it to the camera below
-            # ---------------- mirror ----------------
-            if params.max_depth >= 0 and mirrors >= max_mirrors:
-                return
-            if wp.dot(ns, d) >= 0.0:
-                return
-            wi = reflect(d, ns)
-            if wp.dot(wi, ng) <= 0.0:
-                return
-            refl = wp.cw_mul(refl, scene.mat_rgb[mat])
-            beta = wp.cw_mul(beta, scene.mat_rgb[mat])
-            mirrors += 1
-            if params.max_depth < 0 and mirrors >= params.rr_depth:
+            wl = -d  # towards the light side
+            if wp.dot(ns, wl) <= 0.0:
+                return  # the shading normal faces away from the light (the integrator's viewer test)
+            # room for another segment beyond this hit and the camera's (the integrator's max_depth)
+            go_on = params.max_depth < 0 or segments + 2 <= params.max_depth
+            wn = wp.vec3(0.0)
+            weight = wp.vec3(0.0)
+            if scene.mat_kind[mat] == 1:
+                # ---------------- mirror ----------------
+                if not go_on:
+                    return
+                wn = reflect(d, ns)
+                if wp.dot(wn, ng) <= 0.0:
+                    return
+                # the adjoint of the integrator's mirror (radiance times the reflectance about the shading
+                # normal): reflection keeps solid angle, not the projected solid angle |ng . w| dw that carries
+                # a particle's flux, so the flux gets |ng . wn| / |ng . wl| (1 where ns = ng)
+                weight = scene.mat_rgb[mat] * (wp.dot(wn, ng) / wp.dot(wl, ng))
+                mirrors += 1
+            else:
+                # ---------------- diffuse: seen by the camera, then onwards ----------------
+                if mirrors == 0:
+                    return  # light -> diffuse directly: next-event estimation's share
+                if wp.dot(ng, wl) <= 0.0:
+                    return
+                albedo = scene.mat_rgb[mat]
+                imp = camera_importance(cam, hit.p, hit.ng)
+                wc = wp.normalize(cam.origin - hit.p)
+                # the camera must be on the side the light arrived on (the integrator's one-sided and shading
+                # tests)
+                if imp.pixel >= 0 and wp.dot(ng, wc) > 0.0 and wp.dot(ns, wc) > 0.0:
+                    so = offset_origin(hit.p, ng, hit.scale, wc)
+                    end = cam.origin - wc * imp.near  # the near plane: what lies closer to the pinhole is clipped
+                    seg = end - so
+                    seg_len = wp.length(seg)
+                    if seg_len > 0.0:
+                        if not occluded(scene, so, seg / seg_len, seg_len, hit.quad, -1, hit.sphere, hit.ng):
+                            value = wp.cw_mul(beta, albedo) * (wp.dot(ns, wl) / wp.abs(wp.dot(hit.ng, wl))
+                                                               * imp.weight / (wp.pi * float(n_paths)))
+                            if wp.isfinite(value):
+                                wp.atomic_add(splat, imp.pixel, wp.vec3d(value))
+                            else:
+                                wp.atomic_add(discarded, 0, 1)
+                if not go_on:
+                    return
+                u = rand4(key, dim)
+                dim += wp.uint32(1)
+                wn = sample_cosine_around(ns, u[0], u[1])
+                cos_n = wp.dot(wn, ng)
+                if cos_n <= 0.0:
+                    return
+                # f / pdf of the cosine-sampled direction with the adjoint's shading-normal factor
+                # |ns . wl| |ng . wn| / (|ng . wl| |ns . wn|) (Veach's thesis, 5.3.2)
+                weight = albedo * (wp.dot(ns, wl) * cos_n / (wp.dot(ng, wl) * wp.dot(ns, wn)))
+            beta = wp.cw_mul(beta, weight)
+            refl = wp.cw_mul(refl, weight)
+            segments += 1
+            if params.max_depth < 0 and segments > params.rr_depth:
                 q_rr = wp.min(wp.max(refl[0], wp.max(refl[1], refl[2])), 0.95)
                 u = rand4(key, dim)
                 dim += wp.uint32(1)
@@ -163,41 +214,11 @@ def make_light_kernel(features: Features):
                     return
                 beta = beta / q_rr
                 refl = refl / q_rr
-            o = offset_origin(hit.p, ng, hit.scale, wi)
-            d = wi
+            o = offset_origin(hit.p, ng, hit.scale, wn)
+            d = wn
             origin_quad = hit.quad
             origin_sphere = hit.sphere
             origin_normal = hit.ng
-
-        if mirrors == 0:
-            return  # light -> diffuse directly: next-event estimation's share
-
-        # ---------------- the diffuse point seen by the camera ----------------
-        wi = -d  # towards the mirror the light came from
-        if wp.dot(ng, wi) <= 0.0 or wp.dot(ns, wi) <= 0.0:
-            return
-        imp = camera_importance(cam, hit.p, hit.ng)
-        if imp.pixel < 0:
-            return
-        wc = wp.normalize(cam.origin - hit.p)
-        # the camera must be on the side the light arrived on (the integrator's one-sided and shading tests)
-        if wp.dot(ng, wc) <= 0.0 or wp.dot(ns, wc) <= 0.0:
-            return
-        so = offset_origin(hit.p, ng, hit.scale, wc)
-        end = cam.origin - wc * imp.near  # the near plane: what lies closer to the pinhole is clipped away
-        seg = end - so
-        seg_len = wp.length(seg)
-        if seg_len <= 0.0:
-            return
-        if occluded(scene, so, seg / seg_len, seg_len, hit.quad, -1, hit.sphere, hit.ng):
-            return
-        albedo = scene.mat_rgb[mat]
-        value = wp.cw_mul(beta, albedo) * (wp.dot(ns, wi) / wp.abs(wp.dot(hit.ng, wi)) * imp.weight
-                                           / (wp.pi * float(n_paths)))
-        if wp.isfinite(value):
-            wp.atomic_add(splat, imp.pixel, wp.vec3d(value))
-        else:
-            wp.atomic_add(discarded, 0, 1)
 
     return light_pass
 

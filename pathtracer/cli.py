@@ -95,7 +95,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="light samples: area (default, uniform on the light) or solid_angle (uniform in the solid "
                    "angle of rectangular lights)")
     p.add_argument("--light-tracing", nargs="?", const="on", choices=("auto", "on", "off"), default=None,
-                   help="caustics seen directly (light -> mirrors -> diffuse -> camera) from light paths: auto "
+                   help="caustics (light -> mirrors -> diffuse surfaces -> camera) from light paths: auto "
                    "(default: a pilot of both decides, and counts toward the image), on (also the flag alone), off")
     p.add_argument("--stats", metavar="PATH.json", help="write the render's statistics (times, samples, estimated "
                    "relMSE, the estimator used) as JSON")

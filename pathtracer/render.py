@@ -97,7 +97,7 @@ class Renderer:
     light_sampling "solid_angle" samples rectangular lights uniformly in the solid angle they subtend (Urena et al.
     2013) instead of uniformly in area ("area", default): far less variance near a light.
     count_rays compiles an instrumented variant that counts every ray traced (for benchmarks).
-    light_tracing: caustics seen directly (light -> mirrors -> a diffuse surface -> camera) from light paths
+    light_tracing: caustics (light -> mirrors -> any bounces -> a diffuse surface -> camera) from light paths
     (kernels/light_tracer.py) instead of camera paths (default off; it applies only to scenes with mirrors and
     lights, and max_depth -1 or >= 3). Far less noise where the camera sees the surfaces the caustics fall on, far
     more where it sees only a sliver of them (a narrow view): light paths rarely land there.
