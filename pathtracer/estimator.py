@@ -111,13 +111,17 @@ def predicted_path_error(traced_sums: PassSum, magnitude: float) -> float:
 
 @dataclass
 class Pilot:
-    """The pilot's outcome: which candidate won, the films of both (the winner's continues), the figures."""
+    """The pilot's outcome: which candidate won, the films of both (the winner's continues), the figures.
+
+    ``finished`` False: a stop came first; the films hold the passes rendered until then (candidate A's, then B's)
+    and nothing is decided (``use_light_tracing`` False, ``config`` only the pilot's progress)."""
 
     use_light_tracing: bool
     films: dict  # "path", "light_tracing" -> Film with the pilot's passes
     seeds: dict  # the same keys -> the seed of that candidate's passes
     passes: int  # per candidate
     config: dict
+    finished: bool = True
 
     @property
     def winner(self) -> str:
@@ -128,16 +132,29 @@ class Pilot:
         return "path" if self.use_light_tracing else "light_tracing"
 
 
-def run_pilot(path: Renderer, traced: Renderer, seed: int, spp: int, progress=False) -> Pilot:
-    """Render the pilot passes with both renderers (``path``: light tracing off, ``traced``: on) and decide."""
+def run_pilot(path: Renderer, traced: Renderer, seed: int, spp: int, progress=False, stop=None,
+              films: tuple | None = None) -> Pilot:
+    """Render the pilot passes with both renderers (``path``: light tracing off, ``traced``: on) and decide.
+
+    ``stop`` (a ``jobs.StopFlag``): once set, the pilot stops after the passes under way (unfinished: see ``Pilot``).
+    ``films``: the two candidates' films to continue (a resumed pilot); they hold a prefix of each candidate's
+    passes, so the pilot ends with the same sums, and the same decision, as one that was never interrupted."""
     p = pilot_passes(spp, path.replicates)
     seed_b = pilot_seed(seed)
-    fa, fb = path.new_film(), traced.new_film()
+    fa, fb = films if films is not None else (path.new_film(), traced.new_film())
+    seeds = {"path": seed, "light_tracing": seed_b}
     if hasattr(path, "start"):  # the Ray farm: both candidates' units handed out before waiting for either
-        path.start(fa, seed, 0, p)
-        traced.start(fb, seed_b, 0, p)
-    path.render_into(fa, seed, 0, p, progress)
-    traced.render_into(fb, seed_b, 0, p, progress)
+        if fa.passes < p:
+            path.start(fa, seed, fa.next_pass, p - fa.passes)
+        if fb.passes < p:
+            traced.start(fb, seed_b, fb.next_pass, p - fb.passes)
+    for renderer, film, s in ((path, fa, seed), (traced, fb, seed_b)):
+        if film.passes < p and not (stop is not None and stop.is_set()):
+            renderer.render_into(film, s, film.next_pass, p - film.passes, progress, stop=stop)
+    if fa.passes < p or fb.passes < p:
+        config = {"light_tracing": False, "pilot": {"passes_each": p, "unfinished": True,
+                                                     "passes_done": {"path": fa.passes, "light_tracing": fb.passes}}}
+        return Pilot(False, {"path": fa, "light_tracing": fb}, seeds, p, config, finished=False)
     a, b = fa.sums(), fb.sums()
     # relMSE x cost per pass of each candidate: path tracing's measured or, where the pilot cannot have seen its
     # rare caustic samples, predicted from the light tracer's view of them (whichever is larger)
@@ -156,4 +173,4 @@ def run_pilot(path: Renderer, traced: Renderer, seed: int, spp: int, progress=Fa
         "path_measured": float(measured), "path_predicted": predicted,
         "pilot_seconds": {"path": a.seconds, "light_tracing": b.seconds},
         "weights": {"path": weights[0], "light_tracing": weights[1]}}}
-    return Pilot(use_lt, {"path": fa, "light_tracing": fb}, {"path": seed, "light_tracing": seed_b}, p, config)
+    return Pilot(use_lt, {"path": fa, "light_tracing": fb}, seeds, p, config)

@@ -153,14 +153,38 @@ def _digest(arrays: dict) -> str:
     return h.hexdigest()
 
 
-def write_checkpoint(path: str | os.PathLike, sums: PassSum, next_pass: int, config: dict) -> None:
+PILOT_B = "pilot_b_"  # a checkpoint taken during the auto pilot: the light-tracing candidate's arrays, so prefixed
+
+
+def _sums_meta(sums: PassSum, next_pass: int) -> dict:
+    return {"next_pass": next_pass, "passes": sums.passes, "discarded": sums.discarded, "seconds": sums.seconds,
+            "rays": sums.rays, "estimator": sums.estimator}
+
+
+def _sums_from(meta: dict, data: dict, prefix: str = "") -> tuple[PassSum, int]:
+    get = lambda k: data.get(prefix + k)  # noqa: E731
+    sums = PassSum(data[prefix + "sum"], data[prefix + "sum_sq"], int(meta["passes"]), int(meta["discarded"]),
+                   float(meta["seconds"]), int(meta["rays"]), get("lt_sum"), get("lt_sum_sq"), get("rep_sum"),
+                   get("rep_passes"), str(meta["estimator"]), get("m2_sum"), get("counts"))
+    return sums, int(meta["next_pass"])
+
+
+def write_checkpoint(path: str | os.PathLike, sums: PassSum, next_pass: int, config: dict,
+                     pilot_b: tuple[PassSum, int] | None = None) -> None:
     """The sums, the next pass and the configuration, written to a temporary file in the same folder, flushed to
-    disk and renamed over ``path``: the previous checkpoint stays whole until the new one is."""
+    disk and renamed over ``path``: the previous checkpoint stays whole until the new one is.
+
+    ``pilot_b``: a checkpoint of an unfinished auto pilot (``sums`` are then the path-tracing candidate's): the
+    light-tracing candidate's sums and next pass, so that a resume finishes the pilot and decides as a render
+    without the interruption would have."""
     path = os.fspath(path)
     arrays = {k: getattr(sums, k) for k in _ARRAYS if getattr(sums, k) is not None}
-    meta = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "config": config, "next_pass": next_pass,
-            "passes": sums.passes, "discarded": sums.discarded, "seconds": sums.seconds, "rays": sums.rays,
-            "estimator": sums.estimator, "digest": _digest(arrays)}
+    meta = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "config": config,
+            **_sums_meta(sums, next_pass)}
+    if pilot_b is not None:
+        arrays.update({PILOT_B + k: getattr(pilot_b[0], k) for k in _ARRAYS if getattr(pilot_b[0], k) is not None})
+        meta["pilot_b"] = _sums_meta(*pilot_b)
+    meta["digest"] = _digest(arrays)
     directory, name = os.path.split(os.path.abspath(path))
     tmp = os.path.join(directory, f".{name}.{os.getpid()}.tmp")
     try:
@@ -187,21 +211,28 @@ def write_checkpoint(path: str | os.PathLike, sums: PassSum, next_pass: int, con
 
 def checkpoint_config(path: str | os.PathLike) -> dict:
     """The configuration a checkpoint was made with, read without its sums (CheckpointError as ``read_checkpoint``)."""
-    return _load(os.fspath(path), meta_only=True)[0]["config"]
+    meta = _load(os.fspath(path), meta_only=True)[0]
+    config = dict(meta["config"])
+    if "pilot_b" in meta:
+        config["pilot_unfinished"] = True
+    return config
 
 
-def read_checkpoint(path: str | os.PathLike) -> tuple[PassSum, int, dict]:
-    """(sums, next pass, configuration) of a checkpoint; CheckpointError (one line) if it cannot be used."""
+def read_checkpoint(path: str | os.PathLike, with_pilot: bool = False):
+    """(sums, next pass, configuration) of a checkpoint; CheckpointError (one line) if it cannot be used.
+
+    ``with_pilot``: a fourth item, the light-tracing candidate's (sums, next pass) when the checkpoint was taken
+    during the auto pilot (``write_checkpoint``'s ``pilot_b``), else None."""
     path = os.fspath(path)
     meta, data = _load(path)
     try:
         if _digest(data) != meta["digest"]:
             raise CheckpointError(f"{path}: checkpoint is corrupt (its sums do not match their checksum)")
-        sums = PassSum(data["sum"], data["sum_sq"], int(meta["passes"]), int(meta["discarded"]),
-                       float(meta["seconds"]), int(meta["rays"]), data.get("lt_sum"), data.get("lt_sum_sq"),
-                       data.get("rep_sum"), data.get("rep_passes"), str(meta["estimator"]), data.get("m2_sum"),
-                       data.get("counts"))
-        return sums, int(meta["next_pass"]), dict(meta["config"])
+        sums, next_pass = _sums_from(meta, data)
+        pilot_b = _sums_from(meta["pilot_b"], data, PILOT_B) if "pilot_b" in meta else None
+        if with_pilot:
+            return sums, next_pass, dict(meta["config"]), pilot_b
+        return sums, next_pass, dict(meta["config"])
     except CheckpointError:
         raise
     except (KeyError, TypeError, ValueError) as e:
@@ -296,11 +327,26 @@ def _run_job(path_renderer, traced_renderer, seed, budget, pilot_spp, checkpoint
     resumed = 0
     renderer, film, run_seed = path_renderer, None, seed
 
+    pilot_films = None  # a resumed pilot's two films
     if resume:
         if checkpoint is None:
             raise RenderError("resume needs a checkpoint path")
-        sums, next_pass, saved = read_checkpoint(checkpoint)
+        sums, next_pass, saved, pilot_b = read_checkpoint(checkpoint, with_pilot=True)
         check_config(checkpoint, saved, config)
+        if pilot_b is not None:  # taken during the auto pilot: the pilot goes on below
+            if traced_renderer is None:
+                raise CheckpointError(f"{checkpoint}: checkpoint was made during the light-tracing pilot, which "
+                                      f"this render does not run")
+            pilot_films = (path_renderer.new_film(), traced_renderer.new_film())
+            pilot_resumed = {"path": sums.passes, "light_tracing": pilot_b[0].passes}
+            for f, (s_, n_) in zip(pilot_films, ((sums, next_pass), pilot_b)):
+                if s_.passes:
+                    try:
+                        f.load(s_, n_)
+                    except ValueError as e:
+                        raise CheckpointError(f"{checkpoint}: {e}") from None
+            resume = False
+    if resume:
         if saved.get("light_tracing") and not path_renderer.light_tracing:  # auto chose light tracing
             if traced_renderer is None:
                 raise CheckpointError(f"{checkpoint}: checkpoint was made with light tracing, which this render "
@@ -319,7 +365,12 @@ def _run_job(path_renderer, traced_renderer, seed, budget, pilot_spp, checkpoint
             config["pilot"] = saved["pilot"]
         resumed = sums.passes
     elif traced_renderer is not None:  # (the caller checked that pilot_spp leaves room for a pilot)
-        pilot = estimator.run_pilot(path_renderer, traced_renderer, seed, pilot_spp, progress)
+        pilot = estimator.run_pilot(path_renderer, traced_renderer, seed, pilot_spp, progress, stop=stop,
+                                    films=pilot_films)
+        if pilot_films is not None:  # the image's passes that came from the checkpoint
+            resumed = pilot_resumed[pilot.winner] if pilot.finished else pilot_resumed["path"]
+        if not pilot.finished:  # stopped: both candidates' passes kept for a resume, candidate A's as the image
+            return _unfinished_pilot(pilot, checkpoint, dict(config, **pilot.config), resumed)
         config.update(pilot.config)
         film = pilot.films[pilot.winner]
         extra_seconds = pilot.films[pilot.loser].seconds
@@ -339,6 +390,19 @@ def _run_job(path_renderer, traced_renderer, seed, budget, pilot_spp, checkpoint
     finally:
         if hasattr(film, "close"):
             film.close()
+
+
+def _unfinished_pilot(pilot, checkpoint, config, resumed) -> Outcome:
+    """A job stopped during its pilot: path tracing's passes so far are the image (the light-tracing candidate's,
+    rendered after them, count as extra time), and the checkpoint keeps both for a resume to finish the pilot."""
+    fa, fb = pilot.films["path"], pilot.films["light_tracing"]
+    a, b = fa.sums(), fb.sums()
+    if checkpoint is not None:
+        write_checkpoint(checkpoint, a, fa.next_pass, config, pilot_b=(b, fb.next_pass))
+    for f in (fa, fb):
+        if hasattr(f, "close"):
+            f.close()
+    return Outcome(a, "interrupted", config, b.seconds, resumed)
 
 
 def _loop(renderer, film, run_seed, budget, checkpoint, checkpoint_every, preview, preview_every, stop,

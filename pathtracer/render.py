@@ -641,7 +641,8 @@ def render(
         else:
             may_trace = auto and r.light_tracing_possible and estimator.pilot_passes(pilot_spp, r.replicates) > 0
             if may_trace and resume:  # compile the light tracer only if the checkpoint's render used it
-                may_trace = bool(jobs.checkpoint_config(checkpoint).get("light_tracing"))
+                saved = jobs.checkpoint_config(checkpoint)
+                may_trace = bool(saved.get("light_tracing") or saved.get("pilot_unfinished"))
             if may_trace:
                 traced = make(scene, light_tracing=True, **opts)
                 compile_seconds += traced.compile_seconds
