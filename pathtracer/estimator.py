@@ -133,13 +133,14 @@ class Pilot:
 
 
 def run_pilot(path: Renderer, traced: Renderer, seed: int, spp: int, progress=False, stop=None,
-              films: tuple | None = None) -> Pilot:
+              films: tuple | None = None, passes: int | None = None) -> Pilot:
     """Render the pilot passes with both renderers (``path``: light tracing off, ``traced``: on) and decide.
 
     ``stop`` (a ``jobs.StopFlag``): once set, the pilot stops after the passes under way (unfinished: see ``Pilot``).
     ``films``: the two candidates' films to continue (a resumed pilot); they hold a prefix of each candidate's
-    passes, so the pilot ends with the same sums, and the same decision, as one that was never interrupted."""
-    p = pilot_passes(spp, path.replicates)
+    passes, so the pilot ends with the same sums, and the same decision, as one that was never interrupted.
+    ``passes``: the pilot's passes per candidate (a resumed pilot keeps its own), else ``pilot_passes(spp)``."""
+    p = passes if passes is not None else pilot_passes(spp, path.replicates)
     seed_b = pilot_seed(seed)
     fa, fb = films if films is not None else (path.new_film(), traced.new_film())
     seeds = {"path": seed, "light_tracing": seed_b}

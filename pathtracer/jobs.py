@@ -327,7 +327,7 @@ def _run_job(path_renderer, traced_renderer, seed, budget, pilot_spp, checkpoint
     resumed = 0
     renderer, film, run_seed = path_renderer, None, seed
 
-    pilot_films = None  # a resumed pilot's two films
+    pilot_films, pilot_size = None, None  # a resumed pilot's two films and passes per candidate
     if resume:
         if checkpoint is None:
             raise RenderError("resume needs a checkpoint path")
@@ -339,12 +339,11 @@ def _run_job(path_renderer, traced_renderer, seed, budget, pilot_spp, checkpoint
                                       f"this render does not run")
             pilot_films = (path_renderer.new_film(), traced_renderer.new_film())
             pilot_resumed = {"path": sums.passes, "light_tracing": pilot_b[0].passes}
+            # the pilot's size as it began (a resume with another spp must not change the decision's inputs)
+            pilot_size = int(saved.get("pilot", {}).get("passes_each", 0)) or None
             for f, (s_, n_) in zip(pilot_films, ((sums, next_pass), pilot_b)):
                 if s_.passes:
-                    try:
-                        f.load(s_, n_)
-                    except ValueError as e:
-                        raise CheckpointError(f"{checkpoint}: {e}") from None
+                    _load_film(f, s_, n_, checkpoint)
             resume = False
     if resume:
         if saved.get("light_tracing") and not path_renderer.light_tracing:  # auto chose light tracing
@@ -356,17 +355,14 @@ def _run_job(path_renderer, traced_renderer, seed, budget, pilot_spp, checkpoint
             raise CheckpointError(f"{checkpoint}: checkpoint holds {sums.passes} passes, more than the {budget.spp} "
                                   f"asked for")
         film = renderer.new_film()
-        try:
-            film.load(sums, next_pass)
-        except ValueError as e:
-            raise CheckpointError(f"{checkpoint}: {e}") from None
+        _load_film(film, sums, next_pass, checkpoint)
         config["light_tracing"] = bool(saved.get("light_tracing"))
         if "pilot" in saved:
             config["pilot"] = saved["pilot"]
         resumed = sums.passes
     elif traced_renderer is not None:  # (the caller checked that pilot_spp leaves room for a pilot)
         pilot = estimator.run_pilot(path_renderer, traced_renderer, seed, pilot_spp, progress, stop=stop,
-                                    films=pilot_films)
+                                    films=pilot_films, passes=pilot_size)
         if pilot_films is not None:  # the image's passes that came from the checkpoint
             resumed = pilot_resumed[pilot.winner] if pilot.finished else pilot_resumed["path"]
         if not pilot.finished:  # stopped: both candidates' passes kept for a resume, candidate A's as the image
@@ -390,6 +386,13 @@ def _run_job(path_renderer, traced_renderer, seed, budget, pilot_spp, checkpoint
     finally:
         if hasattr(film, "close"):
             film.close()
+
+
+def _load_film(film, sums: PassSum, next_pass: int, checkpoint: str) -> None:
+    try:
+        film.load(sums, next_pass)
+    except ValueError as e:
+        raise CheckpointError(f"{checkpoint}: {e}") from None
 
 
 def _unfinished_pilot(pilot, checkpoint, config, resumed) -> Outcome:

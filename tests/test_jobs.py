@@ -105,6 +105,13 @@ def test_a_stop_during_the_pilot_keeps_both_candidates_and_resumes_bit_identical
             "relmse_x_cost_per_pass"]
         assert np.array_equal(resumed, full), f"stopped after {n} looks ({done})"
     assert stages == {"none", "A", "B"}, stages  # stopped before the pilot and in each candidate's passes
+    # resumed with a larger spp, the pilot keeps the size it began with (spp / 32 would have made it 16 each)
+    ck = tmp_path / "ck2.npz"
+    pathtracer.render(scene, spp=256, seed=5, progress=False, threads=1, checkpoint=ck, stop=StopAfterLooks(2))
+    st3: dict = {}
+    pathtracer.render(scene, spp=512, seed=5, progress=False, threads=1, checkpoint=ck, resume=True, stats=st3)
+    assert st3["config"]["pilot"]["passes_each"] == p and st3["spp"] == 512
+    assert st3["config"]["pilot"]["relmse_x_cost_per_pass"] == full_st["config"]["pilot"]["relmse_x_cost_per_pass"]
 
 
 def test_checkpoints_and_unit_sizes_do_not_change_the_image(tmp_path):
