@@ -156,6 +156,10 @@ def _digest(arrays: dict) -> str:
 PILOT_B = "pilot_b_"  # a checkpoint taken during the auto pilot: the light-tracing candidate's arrays, so prefixed
 
 
+def _sums_arrays(sums: PassSum, prefix: str = "") -> dict:
+    return {prefix + k: getattr(sums, k) for k in _ARRAYS if getattr(sums, k) is not None}
+
+
 def _sums_meta(sums: PassSum, next_pass: int) -> dict:
     return {"next_pass": next_pass, "passes": sums.passes, "discarded": sums.discarded, "seconds": sums.seconds,
             "rays": sums.rays, "estimator": sums.estimator}
@@ -178,11 +182,11 @@ def write_checkpoint(path: str | os.PathLike, sums: PassSum, next_pass: int, con
     light-tracing candidate's sums and next pass, so that a resume finishes the pilot and decides as a render
     without the interruption would have."""
     path = os.fspath(path)
-    arrays = {k: getattr(sums, k) for k in _ARRAYS if getattr(sums, k) is not None}
+    arrays = _sums_arrays(sums)
     meta = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "config": config,
             **_sums_meta(sums, next_pass)}
     if pilot_b is not None:
-        arrays.update({PILOT_B + k: getattr(pilot_b[0], k) for k in _ARRAYS if getattr(pilot_b[0], k) is not None})
+        arrays.update(_sums_arrays(pilot_b[0], PILOT_B))
         meta["pilot_b"] = _sums_meta(*pilot_b)
     meta["digest"] = _digest(arrays)
     directory, name = os.path.split(os.path.abspath(path))
@@ -211,11 +215,7 @@ def write_checkpoint(path: str | os.PathLike, sums: PassSum, next_pass: int, con
 
 def checkpoint_config(path: str | os.PathLike) -> dict:
     """The configuration a checkpoint was made with, read without its sums (CheckpointError as ``read_checkpoint``)."""
-    meta = _load(os.fspath(path), meta_only=True)[0]
-    config = dict(meta["config"])
-    if "pilot_b" in meta:
-        config["pilot_unfinished"] = True
-    return config
+    return _load(os.fspath(path), meta_only=True)[0]["config"]
 
 
 def read_checkpoint(path: str | os.PathLike, with_pilot: bool = False):

@@ -642,7 +642,7 @@ def render(
             may_trace = auto and r.light_tracing_possible and estimator.pilot_passes(pilot_spp, r.replicates) > 0
             if may_trace and resume:  # compile the light tracer only if the checkpoint's render used it
                 saved = jobs.checkpoint_config(checkpoint)
-                may_trace = bool(saved.get("light_tracing") or saved.get("pilot_unfinished"))
+                may_trace = bool(saved.get("light_tracing") or saved.get("pilot", {}).get("unfinished"))
             if may_trace:
                 traced = make(scene, light_tracing=True, **opts)
                 compile_seconds += traced.compile_seconds
