@@ -150,8 +150,8 @@ def make_light_kernel(features: Features):
                 ng = -ng
                 ns = -ns
             wl = -d  # towards the light side
-            if wp.dot(ns, wl) <= 0.0:
-                return  # the shading normal faces away from the light (the integrator's viewer test)
+            if wp.dot(ns, wl) <= 0.0 or wp.dot(ng, wl) <= 0.0:
+                return  # the shading normal faces away from the light (the integrator's viewer test), or grazing
             # room for another segment beyond this hit and the camera's (the integrator's max_depth)
             go_on = params.max_depth < 0 or segments + 2 <= params.max_depth
             wn = wp.vec3(0.0)
@@ -172,8 +172,6 @@ def make_light_kernel(features: Features):
                 # ---------------- diffuse: seen by the camera, then onwards ----------------
                 if mirrors == 0:
                     return  # light -> diffuse directly: next-event estimation's share
-                if wp.dot(ng, wl) <= 0.0:
-                    return
                 albedo = scene.mat_rgb[mat]
                 imp = camera_importance(cam, hit.p, hit.ng)
                 wc = wp.normalize(cam.origin - hit.p)
@@ -186,7 +184,7 @@ def make_light_kernel(features: Features):
                     seg_len = wp.length(seg)
                     if seg_len > 0.0:
                         if not occluded(scene, so, seg / seg_len, seg_len, hit.quad, -1, hit.sphere, hit.ng):
-                            value = wp.cw_mul(beta, albedo) * (wp.dot(ns, wl) / wp.abs(wp.dot(hit.ng, wl))
+                            value = wp.cw_mul(beta, albedo) * (wp.dot(ns, wl) / wp.dot(ng, wl)
                                                                * imp.weight / (wp.pi * float(n_paths)))
                             if wp.isfinite(value):
                                 wp.atomic_add(splat, imp.pixel, wp.vec3d(value))
