@@ -57,7 +57,8 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     for name in a.scenes:
         m = measure(name, a.spp, a.pairs, light_tracing=a.light_tracing)
-        print(f"{name}{' (light tracing)' if a.light_tracing else ''}: 1 thread alone {m['alone']:.3f} s, 1 thread beside a busy core {m['loaded']:.3f} s, "
+        label = f"{name} (light tracing)" if a.light_tracing else name
+        print(f"{label}: 1 thread alone {m['alone']:.3f} s, 1 thread beside a busy core {m['loaded']:.3f} s, "
               f"2 threads {m['two']:.3f} s: {m['ratio_alone']:.2f}x plain, {m['ratio_equal_clock']:.2f}x at equal clock",
               flush=True)
     return 0

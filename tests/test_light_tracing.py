@@ -37,9 +37,19 @@ def leaning_rect(scene, center, half_u, half_v, mat: int, tilt: float, n: int = 
                    + np.cos(3.4 * t + 0.4)[:, None] * v / np.linalg.norm(v))
     normals = normal + lean
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    quads = [(i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1) for i in range(n - 1) for j in range(n - 1)]
+    quads = [(i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1)
+             for i in range(n - 1) for j in range(n - 1)]
     faces = np.array([f for a, b, c_, d in quads for f in ((a, b, c_), (a, c_, d))])  # counter-clockwise about normal
     scene.meshes.append(TriangleMesh(verts, faces, normals, mat))
+
+
+def rect(scene, center, half_u, half_v, mat: int, tilt: float) -> None:
+    """The parallelogram facing half_u x half_v: ``add_rect``'s two triangles, or with ``tilt`` ``leaning_rect``."""
+    if tilt == 0.0:
+        n = np.cross(np.asarray(half_u, dtype=np.float64), np.asarray(half_v, dtype=np.float64))
+        add_rect(scene, center, half_u, half_v, n, mat)
+    else:
+        leaning_rect(scene, center, half_u, half_v, mat, tilt)
 
 
 def mirror_room(width: int = 32, height: int = 32, max_depth: int = 3, light_half: float = 0.8, wall: bool = False,
@@ -54,17 +64,9 @@ def mirror_room(width: int = 32, height: int = 32, max_depth: int = 3, light_hal
     weigh its flux for both."""
     s = make_scene((0.3, 6.0, 0.2), (0.0, 0.0, 0.0), 50, width, height, up=(0, 0, -1), max_depth=max_depth)
     add_rect(s, (0, 0, 0), (2, 0, 0), (0, 0, 2), (0, 1, 0), material(s, "diffuse", 0.5))
-    mirror = material(s, "mirror", 0.8)
-    if tilt == 0.0:
-        add_rect(s, (-2, 1.5, 0), (0, 0, 2), (0, 1.5, 0), (1, 0, 0), mirror)
-    else:
-        leaning_rect(s, (-2, 1.5, 0), (0, 1.5, 0), (0, 0, 2), mirror, tilt)
+    rect(s, (-2, 1.5, 0), (0, 1.5, 0), (0, 0, 2), material(s, "mirror", 0.8), tilt)
     if wall:
-        back = material(s, "diffuse", 0.7)
-        if tilt == 0.0:
-            add_rect(s, (0, 1.5, -2), (2, 0, 0), (0, 1.5, 0), (0, 0, 1), back)
-        else:
-            leaning_rect(s, (0, 1.5, -2), (2, 0, 0), (0, 1.5, 0), back, tilt)
+        rect(s, (0, 1.5, -2), (2, 0, 0), (0, 1.5, 0), material(s, "diffuse", 0.7), tilt)
     add_rect(s, (0, 1.5, 0), (0, 0, light_half), (0, 0.5, 0), (-1, 0, 0), material(s, "diffuse", 0.0), radiance=5.0)
     return s
 
@@ -76,14 +78,9 @@ def lamp_under_mirror(max_depth: int, tilt: float, width: int = 32, height: int 
     mirror lean their vertex normals (``leaning_rect``), the floor's towards the wall."""
     s = make_scene((0.0, 1.5, 1.8), (0.0, 1.5, -2.0), 40, width, height, max_depth=max_depth)
     floor, back, mirror = (material(s, "diffuse", 0.8), material(s, "diffuse", 0.7), material(s, "mirror", 0.8))
-    if tilt == 0.0:
-        add_rect(s, (0, 0, 0), (2, 0, 0), (0, 0, 2), (0, 1, 0), floor)
-        add_rect(s, (0, 1.5, -2), (2, 0, 0), (0, 1.5, 0), (0, 0, 1), back)
-        add_rect(s, (0, 0.8, 1), (0.4, 0, 0), (0, 0, 0.4), (0, -1, 0), mirror)
-    else:
-        leaning_rect(s, (0, 0, 0), (0, 0, -2), (-2, 0, 0), floor, tilt)
-        leaning_rect(s, (0, 1.5, -2), (0, 1.5, 0), (-2, 0, 0), back, tilt)
-        leaning_rect(s, (0, 0.8, 1), (0.4, 0, 0), (0, 0, 0.4), mirror, tilt)
+    rect(s, (0, 0, 0), (0, 0, -2), (-2, 0, 0), floor, tilt)
+    rect(s, (0, 1.5, -2), (0, 1.5, 0), (-2, 0, 0), back, tilt)
+    rect(s, (0, 0.8, 1), (0.4, 0, 0), (0, 0, 0.4), mirror, tilt)
     add_rect(s, (0, 0.6, 1), (0.3, 0, 0), (0, 0, 0.3), (0, 1, 0), material(s, "diffuse", 0.0), radiance=20.0)
     return s
 
