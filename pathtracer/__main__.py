@@ -1,8 +1,6 @@
 """``python -m pathtracer SCENE.xml -o OUT.exr``: the same as the ``pathtracer`` command."""
 
-import sys
-
-from pathtracer.cli import main
+from pathtracer.cli import entry
 
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

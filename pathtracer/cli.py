@@ -396,7 +396,8 @@ def _interrupted(stop, passes, args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point; returns the exit status (``pathtracer = "pathtracer.cli:main"``)."""
+    """Runs the command; returns the exit status (in-process callers and tests use this; the console script and
+    ``python -m pathtracer`` use ``entry``)."""
     t_start = time.perf_counter()
     try:
         try:
@@ -414,5 +415,22 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
 
 
+def entry() -> None:
+    """The ``pathtracer`` command: ``main``, then exit without the interpreter's teardown.
+
+    Tearing down Warp's thousands of registered builtins and every module's objects takes 0.2 s after the image is
+    written (measured on the seed scenes: 0.19-0.24 s of a 3.4 s run). Nothing needs it: the image and the stats
+    are closed files by then, and the atexit handlers (Warp's and any other library's) still run."""
+    import atexit
+
+    code = main()
+    try:
+        sys.stdout.flush()
+        sys.stderr.flush()
+    finally:
+        atexit._run_exitfuncs()
+        os._exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

@@ -148,6 +148,28 @@ def test_subprocess_version_and_help():
         assert opt in r.stdout
 
 
+@pytest.mark.parametrize("argv,code,out,err", [
+    (["--version"], 0, r"pathtracer \S+\n", ""),
+    (["missing.xml", "-o", "x.exr"], 2, "", r"pathtracer: error: .*missing\.xml"),
+])
+def test_the_command_skips_teardown_but_keeps_exit_status_output_and_atexit_handlers(argv, code, out, err):
+    """``entry`` leaves by os._exit: its status, its buffered output (a pipe, not a terminal) and the atexit
+    handlers of every library must survive that."""
+    prog = ("import atexit, sys\n"
+            "atexit.register(lambda: print('atexit handler ran', file=sys.stderr))\n"
+            f"sys.argv = ['pathtracer'] + {argv!r}\n"
+            "from pathtracer.cli import entry\n"
+            "entry()\n")
+    r = subprocess.run([sys.executable, "-c", prog], cwd=ROOT, env=_env(), capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == code, r.stderr
+    assert re.fullmatch(out, r.stdout) if out else r.stdout == "", r.stdout
+    lines = stderr_lines(r.stderr)
+    assert lines[-1] == "atexit handler ran", r.stderr
+    if err:
+        assert len(lines) == 2 and re.search(err, lines[0]), r.stderr
+
+
 # --- the same checks in-process (fast), none of which may load the scene --------------------------
 
 INPROCESS_ERRORS = [
