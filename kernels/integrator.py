@@ -1,8 +1,8 @@
 """The path integrator: one kernel body, compiled per scene with only the code that scene needs.
 
 ``make_render_kernel(features)`` returns a kernel specialised at compile time (``wp.static``) on which primitives,
-materials, view and roulette rule the scene uses; ``module="unique"`` gives each variant its own small module so a
-new variant never rebuilds another. ``Li`` traces one camera path; the kernel adds one sample per pixel and pass, for a
+materials, view and roulette rule the scene uses; each variant has a small module of its own
+(``Features.module_name``) so a new variant never rebuilds another. ``Li`` traces one camera path; the kernel adds one sample per pixel and pass, for a
 run of consecutive passes over a tile (a set of rows), into the accumulators.
 
 Estimator (equal in expectation to Mitsuba's ``path`` integrator, which adds MIS):
@@ -19,6 +19,7 @@ the light tracer (kernels/light_tracer.py): their emission is not counted here (
 from __future__ import annotations
 
 import functools
+import hashlib
 from dataclasses import dataclass
 
 import warp as wp
@@ -107,6 +108,13 @@ class Features:
     adaptive: bool = False  # per-pixel pass limits (adaptive sampling, pathtracer/adaptive.py)
     gradient: bool = False  # forward-mode derivatives of each path's radiance (pathtracer/gradients.py)
     backward: bool = False  # path replay: every reflectance's and radiance's adjoint at once (pathtracer/gradients.py)
+
+    def module_name(self, kind: str) -> str:
+        """A Warp module name of its own for this variant's ``kind`` of kernel. Named, not ``module="unique"``:
+        Warp names a unique module by hashing the kernel and every function it calls when the kernel is defined,
+        then hashes it all again when it loads (0.04 s each for the render kernel); a name from the features
+        leaves only the load's hash, which keys the disk cache on the code itself."""
+        return f"pathtracer_{kind}_{hashlib.sha256(repr(self).encode()).hexdigest()[:16]}"
 
     @property
     def other_materials(self) -> bool:
@@ -852,7 +860,7 @@ def make_render_kernel(features: Features):
                             wp.atomic_add(adj.radiance, adj_tile * adj.num_lights - 1 - k_ent, adj_g)
         return out
 
-    @wp.kernel(enable_backward=False, module="unique")
+    @wp.kernel(enable_backward=False, module=features.module_name("render"))
     def render_pass(
         scene: SceneData,
         cam: CameraData,

@@ -102,7 +102,7 @@ def make_light_kernel(features: Features):
     """The light-tracing kernel for a scene with ``features`` (mirrors and lights)."""
     trace, occluded, _ = make_tracers(features)
 
-    @wp.kernel(enable_backward=False, module="unique")
+    @wp.kernel(enable_backward=False, module=features.module_name("light"))
     def light_pass(
         scene: SceneData,
         cam: CameraData,
