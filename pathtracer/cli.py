@@ -89,8 +89,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--light-samples", type=int, metavar="K", help="next-event samples per light (> 0)")
     p.add_argument("--rr", choices=("seed", "throughput"), help="Russian roulette: throughput (Mitsuba's rule) or seed")
     p.add_argument("--sampler", choices=("independent", "sobol"),
-                   help="random numbers: sobol (default: Owen-scrambled, stratified across passes, in 4 independent "
-                   "replicates) or independent")
+                   help="random numbers: sobol (default: Owen-scrambled, stratified across passes, in 2 independent "
+                   "replicates; 4 with --adaptive or --target-error) or independent")
     p.add_argument("--light-sampling", choices=("area", "solid_angle"),
                    help="light samples: area (default, uniform on the light) or solid_angle (uniform in the solid "
                    "angle of rectangular lights)")

@@ -431,7 +431,7 @@ def test_stats_json_from_a_real_render(tmp_path, scene_file, monkeypatch, capsys
     assert 0 < st["render_seconds"] <= st["wall_seconds"]
     assert st["samples_per_second"] == pytest.approx(16 * 16 * 12 / st["render_seconds"])
     assert 0 < st["relmse_estimate"] < np.inf
-    assert st["config"]["sampler"] == "sobol" and st["config"]["replicates"] == 4
+    assert st["config"]["sampler"] == "sobol" and st["config"]["replicates"] == 2
     assert [p for p in os.listdir(tmp_path) if p.endswith(".tmp")] == []
 
 

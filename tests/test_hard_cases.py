@@ -55,7 +55,7 @@ PASS_RATE = 0.997
 # helpers
 
 
-REPLICATES = 16  # per-pixel z-tests need a per-pixel variance with many degrees of freedom: 15 here, not the default 3
+REPLICATES = 16  # per-pixel z-tests need a per-pixel variance with many degrees of freedom: 15 here, not the default 1
 
 
 def sums(scene, device, spp, seed, **opts):
@@ -204,7 +204,7 @@ def test_far_tiny_huge_sphere_normals(device, radius, dist):
     is the pixel average over a 16 x 16 grid, its variance the exact variance of the render's pixel means."""
     spp = 16
     sc, expected, var_one = _sphere_normal_image(radius, dist)
-    # the truth's variance is that of i.i.d. jitter: the default (4 replicates of 4 Sobol' points) stratifies the
+    # the truth's variance is that of i.i.d. jitter: 4 replicates of 4 Sobol' points stratify the
     # jitter, which can only make the error smaller; 16 replicates of one point would be i.i.d. jitter, whose few
     # hits of a sliver of sphere in a silhouette pixel are Bernoulli-tailed at 16 spp
     s = sums(sc, device, spp, seed=3, view="normal", replicates=4)
