@@ -327,6 +327,36 @@ def estimate_honesty(scene_name: str, ref: np.ndarray, w: int, h: int, spp: int,
             "geometric_mean_raw": float(np.exp(np.mean(np.log(raw))))}
 
 
+FIXED = [("K=1 area", {}), ("K=2 area", {"light_samples": 2}), ("K=1 solid_angle", {"light_sampling": "solid_angle"})]
+
+
+def auto_vs_fixed(scene_name: str, ref: np.ndarray, w: int, h: int, spp: int, seeds: int = 5,
+                  ref_var: np.ndarray | None = None) -> dict:
+    """The defaults ("auto": the pilot, its loser's time included) against each fixed configuration it could have
+    been (light tracing on or off, where the scene allows it, times K = 1 or 2 and area or solid-angle light
+    sampling), over the same seeds: efficiency = 1 / (mean relMSE x median render seconds)."""
+    scene = load(scene_name, w, h)
+    pathtracer.render(scene, spp=64, seed=3, progress=False)  # compile and load what auto may pick
+    probe = pathtracer.Renderer(scene, light_tracing=True)
+    lt_options = [False, True] if probe.light_tracing else [False]
+    probe.close()
+    runs = {"auto": {}} | {f"{label}{' lt' if lt else ''}": dict(opts, light_tracing=lt)
+                           for lt in lt_options for label, opts in FIXED}
+    out = {}
+    for label, opts in runs.items():
+        errs, secs, choices = [], [], []
+        for s in range(seeds):
+            st = {}
+            img = pathtracer.render(scene, spp=spp, seed=100 + s, progress=False, stats=st, **opts)
+            errs.append(rel_mse_net(img, ref, ref_var))
+            secs.append(st["render_seconds"])
+            choices.append(bool(st["config"].get("light_tracing")))
+        e, t = float(np.mean(errs)), float(np.median(secs))
+        out[label] = {"relmse": errs, "seconds": secs, "light_tracing": choices, "efficiency": 1.0 / (e * t)}
+    best = max((k for k in out if k != "auto"), key=lambda k: out[k]["efficiency"])
+    return {"runs": out, "best_fixed": best, "ratio": out["auto"]["efficiency"] / out[best]["efficiency"]}
+
+
 def machine() -> str:
     cpu = platform.processor() or platform.machine()
     try:
@@ -375,7 +405,7 @@ def plot(rows: list[Row], path: Path) -> None:
 
 
 def markdown(rows: list[Row], refs: dict, args, wall: float, compiles=None, scaling=None, process=None,
-             honesty=None) -> str:
+             honesty=None, auto=None) -> str:
     scaling = scaling or {}
     notes = ROOT / "docs" / "performance_notes.md"
     lines = ["# Performance: speed against error", ""]
@@ -405,7 +435,25 @@ def markdown(rows: list[Row], refs: dict, args, wall: float, compiles=None, scal
             else:
                 lines.append(f"| {sname} | {o['seconds']:.2f} | {o['relmse']:.3e} | | | |")
         lines.append("")
-    if rows:
+    if auto:
+        lines += ["## Auto against the best fixed configuration", "",
+                  f"Render seconds (the pilot and its loser included for auto) and relMSE against the reference, "
+                  f"{args.process_spp} spp at {args.process_size[0]}x{args.process_size[1]}, the same 5 seeds for "
+                  "each configuration; efficiency = 1 / (mean relMSE x median seconds). The fixed configurations: "
+                  "light tracing on (lt) or off where the scene allows it, K = 1 or 2, area or solid-angle light "
+                  "sampling.", "",
+                  "| scene | auto's choice (5 seeds) | auto: s, relMSE | best fixed | its s, relMSE | auto / best |",
+                  "|---|---|---|---|---|---|"]
+        for sname, av in auto.items():
+            a, b = av["runs"]["auto"], av["runs"][av["best_fixed"]]
+            picks = sum(a["light_tracing"])
+            choice = ("light tracing" if picks == len(a["light_tracing"]) else "path tracing" if picks == 0
+                      else f"light tracing {picks} of {len(a['light_tracing'])}")
+            lines.append(f"| {sname} | {choice} | {np.median(a['seconds']):.2f}, {np.mean(a['relmse']):.3e} | "
+                         f"{av['best_fixed']} | {np.median(b['seconds']):.2f}, {np.mean(b['relmse']):.3e} | "
+                         f"**{av['ratio']:.2f}** |")
+        lines.append("")
+    elif rows:
         lines += ["## Auto against the best fixed configuration", "",
                   f"Efficiency at the ladder's top rung ({max(r.spp for r in rows)} spp), ours only.", "",
                   "| scene | defaults (auto) | its choice | best fixed configuration | its efficiency | auto / best |",
@@ -486,8 +534,12 @@ def main(argv=None) -> int:
     ap.add_argument("--process-size", type=int, nargs=2, default=[160, 120], metavar=("W", "H"),
                     help="image size of the whole-process runs (the issue's: 160 x 120)")
     ap.add_argument("--process-reps", type=int, default=3)
+    ap.add_argument("--process-ref-spp", type=int, help="spp of the whole-process runs' references (default: "
+                    "--ref-spp)")
+    ap.add_argument("--no-auto", action="store_true", help="skip auto against the fixed configurations")
     ap.add_argument("--no-process", action="store_true", help="skip the whole-process and error-estimate runs")
     a = ap.parse_args(argv)
+    a.process_ref_spp = a.process_ref_spp or a.ref_spp
     have_mitsuba = False
     if not a.no_mitsuba:
         try:
@@ -516,23 +568,27 @@ def main(argv=None) -> int:
     scaling = ({s: thread_scaling(s, a.width, a.height) for s in a.scenes}
                if (os.cpu_count() or 1) > 1 and not a.no_threads else {})
     compiles = None if a.no_compile else compile_times(a.scenes)
-    process, honesty = {}, {}
+    process, honesty, auto = {}, {}, {}
     if not a.no_process:
         import tempfile
 
         with tempfile.TemporaryDirectory() as tmp:
             pw, ph = a.process_size
             for s in a.scenes:
-                ref, _ = reference(s, pw, ph, Path(a.ref_dir), a.ref_spp, have_mitsuba)
+                ref, _ = reference(s, pw, ph, Path(a.ref_dir), a.process_ref_spp, have_mitsuba)
+                ref_var = reference_variance(s, pw, ph, Path(a.ref_dir), a.process_ref_spp)
                 process[s] = whole_process(s, ref, pw, ph, a.process_spp, a.process_reps, have_mitsuba, Path(tmp))
-                honesty[s] = estimate_honesty(s, ref, pw, ph, a.process_spp,
-                                              ref_var=reference_variance(s, pw, ph, Path(a.ref_dir), a.ref_spp))
+                honesty[s] = estimate_honesty(s, ref, pw, ph, a.process_spp, ref_var=ref_var)
                 print(f"{s}: whole process {process[s]}; estimate/measured {honesty[s]['geometric_mean']:.2f}",
                       flush=True)
+                if not a.no_auto:
+                    auto[s] = auto_vs_fixed(s, ref, pw, ph, a.process_spp, ref_var=ref_var)
+                    print(f"{s}: auto / best fixed ({auto[s]['best_fixed']}) {auto[s]['ratio']:.2f}", flush=True)
     (out / "performance.md").write_text(markdown(rows, refs, a, time.perf_counter() - t_start, compiles, scaling,
-                                                 process, honesty))
+                                                 process, honesty, auto))
     with open(out / "process.json", "w") as f:
-        json.dump({"whole_process": process, "estimate": honesty, "threads": scaling}, f, indent=1)
+        json.dump({"whole_process": process, "estimate": honesty, "auto_vs_fixed": auto, "threads": scaling}, f,
+                  indent=1)
     with open(out / "performance.json", "w") as f:
         json.dump([r.__dict__ | {"efficiency": r.efficiency} for r in rows], f, indent=0)
     try:

@@ -62,6 +62,26 @@ def test_bench_tiny(tmp_path):
     assert len(rows) == 4 and all(r["relmse"] > 0 and r["seconds"] > 0 for r in rows)
 
 
+def test_bench_auto_against_fixed_tiny():
+    """auto against every fixed configuration it could have been: light tracing on and off on a scene with mirrors,
+    K = 1 or 2, area or solid-angle sampling, the same seeds, and a ratio to the best of them."""
+    import pathtracer
+
+    sys.path.insert(0, str(ROOT / "examples"))
+    import bench
+
+    scene = bench.load("cornell_box_mirror", 16, 12)
+    ref = pathtracer.render(scene, spp=256, seed=7, progress=False)
+    out = bench.auto_vs_fixed("cornell_box_mirror", ref, 16, 12, 32, seeds=2)
+    fixed = [label for label, _ in bench.FIXED]
+    assert set(out["runs"]) == {"auto", *fixed, *(f"{f} lt" for f in fixed)}
+    assert all(r["light_tracing"] == [False, False] for k, r in out["runs"].items() if k in fixed)
+    assert all(r["light_tracing"] == [True, True] for k, r in out["runs"].items() if k.endswith(" lt"))
+    best = out["runs"][out["best_fixed"]]["efficiency"]
+    assert best == max(r["efficiency"] for k, r in out["runs"].items() if k != "auto")
+    assert out["ratio"] == pytest.approx(out["runs"]["auto"]["efficiency"] / best)
+
+
 def test_bench_reads_time_to_error_off_the_ladder():
     sys.path.insert(0, str(ROOT / "examples"))
     from bench import Row, crossing_time
