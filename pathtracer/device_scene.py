@@ -36,6 +36,12 @@ def _arr(a, dtype, device) -> wp.array:
                     copy=device != "cpu")
 
 
+def _cat(arrays: list[np.ndarray]) -> np.ndarray:
+    """np.concatenate, without the copy for one array: a 5M-triangle mesh's faces are 126 MB, and fresh memory
+    costs 2.7 s a GiB on a VM whose host backs it lazily."""
+    return arrays[0] if len(arrays) == 1 else np.concatenate(arrays)
+
+
 def _face_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
     length = np.linalg.norm(n, axis=1, keepdims=True)
@@ -59,7 +65,7 @@ def triangle_box_pad(points: np.ndarray, camera_origin) -> float:
 
 def _triangle_tree(points: np.ndarray, faces: np.ndarray, pad: float) -> BoxTree:
     """The box tree over the faces' float32 boxes grown by ``pad`` (rounded outward)."""
-    p32 = points.astype(np.float32)  # the coordinates the kernels test
+    p32 = np.asarray(points, dtype=np.float32)  # the coordinates the kernels test
     a, b, c = p32[faces[:, 0]], p32[faces[:, 1]], p32[faces[:, 2]]
     lo = np.minimum(np.minimum(a, b), c).astype(np.float64)  # (a reduction over a length-3 axis is 5x slower)
     hi = np.maximum(np.maximum(a, b), c).astype(np.float64)
@@ -216,8 +222,11 @@ class TriangleData:
 
     def __init__(self, d: SceneData, points: np.ndarray, faces: np.ndarray, camera_origin, device: str,
                  triangles: str = "wide", source: str = "scene"):
-        self.points = _vec3(points, device)
-        self.indices = _arr(faces, wp.int32, device)
+        # the kernels' float32 points and int32 corners, made once: the tree, the leaves and the device share them
+        points32 = np.ascontiguousarray(points, dtype=np.float32).reshape(-1, 3)
+        faces32 = np.ascontiguousarray(faces, dtype=np.int32).reshape(-1, 3)
+        self.points = _vec3(points32, device)
+        self.indices = _arr(faces32, wp.int32, device)
         self.tree = None
         self.mesh = None
         d.bvh_root = -1  # an empty slot
@@ -227,7 +236,7 @@ class TriangleData:
             d.mesh_id = self.mesh.id
         elif len(faces):
             self.box_pad = triangle_box_pad(points, camera_origin)
-            self.tree = collapse_wide(_triangle_tree(np.asarray(points), faces, self.box_pad))
+            self.tree = collapse_wide(_triangle_tree(points32, faces32, self.box_pad))
             if self.tree.stack_bound + STACK_SLACK >= STACK_SIZE:
                 raise RenderError(f"{source}: the triangle tree is too deep for the traversal's stack "
                                   f"({self.tree.stack_bound} + {STACK_SLACK} entries, {STACK_SIZE} available)")
@@ -235,7 +244,7 @@ class TriangleData:
         t = self.tree
         d.bvh_boxes = wp.array(t.boxes if t else np.zeros((0, 4), np.float32), dtype=wp.vec4, device=device)
         d.bvh_child = wp.array(t.child if t else np.zeros((0, 4), np.int32), dtype=wp.vec4i, device=device)
-        soa, lane_face = leaf_soa(np.asarray(points, np.float32), faces, t) if t else (np.zeros((0, 4)), [])
+        soa, lane_face = leaf_soa(points32, faces32, t) if t else (np.zeros((0, 4)), [])
         d.tri_soa = wp.array(np.ascontiguousarray(soa, dtype=np.float32), dtype=wp.vec4, device=device,
                              copy=device != "cpu")
         d.tri_face = _arr(lane_face, wp.int32, device)
@@ -254,21 +263,21 @@ class DeviceScene:
         quads, tri = split_scene(scene)
         if tri:
             offsets = np.cumsum([0] + [len(m.vertices) for m in tri[:-1]])
-            points = np.concatenate([m.vertices for m in tri])
-            faces = np.concatenate([m.faces + off for m, off in zip(tri, offsets)])
-            face_material = np.concatenate([np.full(len(m.faces), m.material) for m in tri])
+            points = _cat([m.vertices for m in tri])
+            faces = _cat([m.faces + off if off else m.faces for m, off in zip(tri, offsets)])
+            face_material = _cat([np.full(len(m.faces), m.material, dtype=np.int32) for m in tri])
             # a rectangle or cube left as triangles names its parallelogram light; a mesh light comes after the
             # parallelograms and the spheres
             emits = {id(scene.meshes[l.mesh]): len(scene.lights) + len(scene.sphere_lights) + k
                      for k, l in enumerate(scene.mesh_lights)}
-            face_light = np.concatenate([np.full(len(m.faces), emits.get(id(m), m.light)) for m in tri])
+            face_light = _cat([np.full(len(m.faces), emits.get(id(m), m.light), dtype=np.int32) for m in tri])
             corner = []  # float32 before the gather: a 5M-triangle mesh's corners are 190 MB so, 380 MB in float64
             for m in tri:
                 if m.normals is not None:
                     corner.append(np.asarray(m.normals, np.float32)[m.faces].reshape(-1, 3))
                 else:
                     corner.append(np.repeat(_face_normals(m.vertices, m.faces).astype(np.float32), 3, axis=0))
-            corner_normals = np.concatenate(corner)
+            corner_normals = _cat(corner)
             # texture coordinates per corner, only where a texture reads them (Mitsuba's (0, 0) where a mesh has none)
             corner_uv = np.zeros((0, 2))
             if scene.textures:

@@ -1078,7 +1078,7 @@ class _Builder:
             uvs = np.tile([[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]], (6, 1))  # each face onto [0, 1]^2
         elif t in ("obj", "ply", "serialized"):
             uvs = file_uv
-        mesh = TriangleMesh(vertices=vertices, faces=faces.astype(np.int64), normals=normals,
+        mesh = TriangleMesh(vertices=vertices, faces=np.asarray(faces, dtype=np.int64), normals=normals,
                             material=mat_index, name=name, shape=kind, uvs=uvs)
         if radiance is not None and t != "rectangle":
             scene.mesh_lights.append(MeshLight(mesh=len(scene.meshes), radiance=radiance))
@@ -1200,10 +1200,12 @@ class _Builder:
                 f = np.arange(len(flat), dtype=np.int64).reshape(-1, 3)
                 uv = np.tile(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])[order], (len(p.faces), 1))
             vs.append(v)
-            fs.append(f + offset)
+            fs.append(f + offset if offset else f)
             ns.append(n)
             uvs.append(uv)
             offset += len(v)
+        if len(parts) == 1:  # (no copies: a 5M-triangle file's would be 250 MB of fresh memory, a second on a VM)
+            return vs[0], fs[0], None if face_normals else ns[0], uvs[0]
         normals = None if face_normals else np.concatenate(ns)
         uv = np.concatenate(uvs) if uvs[0] is not None else None
         return np.concatenate(vs), np.concatenate(fs), normals, uv

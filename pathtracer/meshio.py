@@ -336,4 +336,5 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     bad = ~(length > 0)
     out[bad] = (1.0, 0.0, 0.0)
     length[bad] = 1.0
-    return out / length[:, None]
+    out /= length[:, None]
+    return out

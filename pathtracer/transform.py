@@ -100,8 +100,9 @@ def normal_matrix(m: np.ndarray) -> np.ndarray:
 
 def transform_points(m: np.ndarray, p: np.ndarray) -> np.ndarray:
     """Apply affine ``m`` to points ``p`` of shape (..., 3)."""
-    p = np.asarray(p, dtype=np.float64)
-    return p @ m[:3, :3].T + m[:3, 3]
+    out = np.asarray(p, dtype=np.float64) @ m[:3, :3].T
+    out += m[:3, 3]  # (in place: one array of a big mesh's size, not two)
+    return out
 
 
 def transform_vectors(m: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -112,7 +113,8 @@ def transform_vectors(m: np.ndarray, v: np.ndarray) -> np.ndarray:
 def transform_normals(m: np.ndarray, n: np.ndarray) -> np.ndarray:
     """Transform normals ``n`` (..., 3) with the inverse transpose of ``m`` and normalize them."""
     out = np.asarray(n, dtype=np.float64) @ normal_matrix(m).T
-    return out / np.linalg.norm(out, axis=-1, keepdims=True)
+    out /= np.linalg.norm(out, axis=-1, keepdims=True)
+    return out
 
 
 class Transform:
