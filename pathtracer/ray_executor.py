@@ -265,6 +265,8 @@ class RayExecutor:
                 return ray.get(getattr(actor, method).remote(key, box, opts, *args))
             except ray.exceptions.RayActorError:
                 self._lost(actor)
+            except ray.exceptions.ObjectLostError:
+                continue  # the answer died with its node; asked again (a dead actor then says so)
             except ray.exceptions.RayTaskError as e:
                 raise _as_render_error(_cause(e)) from None
 
@@ -322,6 +324,14 @@ class RayExecutor:
                     film.requeue.append(unit)
                     film.requeue.sort()
                     self.units_retried += 1 + len(lost)
+                    continue
+                except ray.exceptions.ObjectLostError:
+                    # the unit was rendered, but its sums were on a node that left before we fetched them (an
+                    # actor's task is not re-run to rebuild them: ObjectReconstructionFailedError): render it
+                    # again; if its actor died with the node, its next task says so (RayActorError above)
+                    film.requeue.append(unit)
+                    film.requeue.sort()
+                    self.units_retried += 1
                     continue
                 except ray.exceptions.RayTaskError as e:
                     raise _as_render_error(_cause(e)) from None
