@@ -15,6 +15,7 @@ from kernels.types import CameraData, SceneData
 from kernels.triangle import STACK_SIZE, STACK_SLACK
 from pathtracer.bvh import BoxTree, WideTree, build_tree, collapse_wide, leaf_lanes
 from pathtracer.errors import RenderError
+from pathtracer.meshio import join_arrays
 from pathtracer.microfacet_tables import external_transmittance, internal_reflectance
 from pathtracer.rfilter import filter_cdf
 from pathtracer.scene import MIRROR, Scene, TriangleMesh
@@ -34,12 +35,6 @@ def _arr(a, dtype, device) -> wp.array:
     np_dtype = np.int32 if dtype == wp.int32 else np.float32
     return wp.array(np.ascontiguousarray(a, dtype=np_dtype).reshape(-1), dtype=dtype, device=device,
                     copy=device != "cpu")
-
-
-def _cat(arrays: list[np.ndarray]) -> np.ndarray:
-    """np.concatenate, without the copy for one array: a 5M-triangle mesh's faces are 126 MB, and fresh memory
-    costs 2.7 s a GiB on a VM whose host backs it lazily."""
-    return arrays[0] if len(arrays) == 1 else np.concatenate(arrays)
 
 
 def _face_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
@@ -263,21 +258,21 @@ class DeviceScene:
         quads, tri = split_scene(scene)
         if tri:
             offsets = np.cumsum([0] + [len(m.vertices) for m in tri[:-1]])
-            points = _cat([m.vertices for m in tri])
-            faces = _cat([m.faces + off if off else m.faces for m, off in zip(tri, offsets)])
-            face_material = _cat([np.full(len(m.faces), m.material, dtype=np.int32) for m in tri])
+            points = join_arrays([m.vertices for m in tri])
+            faces = join_arrays([m.faces + off if off else m.faces for m, off in zip(tri, offsets)])
+            face_material = join_arrays([np.full(len(m.faces), m.material, dtype=np.int32) for m in tri])
             # a rectangle or cube left as triangles names its parallelogram light; a mesh light comes after the
             # parallelograms and the spheres
             emits = {id(scene.meshes[l.mesh]): len(scene.lights) + len(scene.sphere_lights) + k
                      for k, l in enumerate(scene.mesh_lights)}
-            face_light = _cat([np.full(len(m.faces), emits.get(id(m), m.light), dtype=np.int32) for m in tri])
+            face_light = join_arrays([np.full(len(m.faces), emits.get(id(m), m.light), dtype=np.int32) for m in tri])
             corner = []  # float32 before the gather: a 5M-triangle mesh's corners are 190 MB so, 380 MB in float64
             for m in tri:
                 if m.normals is not None:
                     corner.append(np.asarray(m.normals, np.float32)[m.faces].reshape(-1, 3))
                 else:
                     corner.append(np.repeat(_face_normals(m.vertices, m.faces).astype(np.float32), 3, axis=0))
-            corner_normals = _cat(corner)
+            corner_normals = join_arrays(corner)
             # texture coordinates per corner, only where a texture reads them (Mitsuba's (0, 0) where a mesh has none)
             corner_uv = np.zeros((0, 2))
             if scene.textures:

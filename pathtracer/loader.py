@@ -1204,8 +1204,6 @@ class _Builder:
             ns.append(n)
             uvs.append(uv)
             offset += len(v)
-        if len(parts) == 1:  # (no copies: a 5M-triangle file's would be 250 MB of fresh memory, a second on a VM)
-            return vs[0], fs[0], None if face_normals else ns[0], uvs[0]
-        normals = None if face_normals else np.concatenate(ns)
-        uv = np.concatenate(uvs) if uvs[0] is not None else None
-        return np.concatenate(vs), np.concatenate(fs), normals, uv
+        normals = None if face_normals else meshio.join_arrays(ns)
+        uv = meshio.join_arrays(uvs) if uvs[0] is not None else None
+        return meshio.join_arrays(vs), meshio.join_arrays(fs), normals, uv

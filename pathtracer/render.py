@@ -617,7 +617,8 @@ def render(
     pilot_spp = min(spp, 256) if budgeted else spp  # a pilot sized for a time or error budget, not for its bound
     seed = scene.sampler_seed if seed is None else seed
     seed = _check_int("seed", seed, 0, UINT32_LIMIT)
-    if replicates is None and (target_error is not None or (adaptive is not False and adaptive is not None)):
+    adaptive_on = adaptive is not False and adaptive is not None
+    if replicates is None and (target_error is not None or adaptive_on):
         replicates = DECIDING_REPLICATES
     if sampler is None and not budgeted and checkpoint is None and isinstance(replicates, (int, type(None))):
         sampler = default_sampler(spp, replicates)
@@ -627,7 +628,7 @@ def render(
     if executor is not None and callback is not None:
         raise RenderError("a per-pass callback is not available with an executor")
     plan = None
-    if adaptive is not False and adaptive is not None:
+    if adaptive_on:
         from pathtracer.adaptive import DEFAULT_THRESHOLD, Adaptive
 
         if callback is not None or executor is not None:
