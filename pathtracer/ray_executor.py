@@ -319,19 +319,14 @@ class RayExecutor:
                     sums = ray.get(ref)
                 except ray.exceptions.RayActorError:
                     self._lost(actor)
-                    lost = [r for r, (a, _) in film.flying.items() if a is actor]
-                    film.requeue.extend(film.flying.pop(r)[1] for r in lost)
-                    film.requeue.append(unit)
-                    film.requeue.sort()
-                    self.units_retried += 1 + len(lost)
+                    lost = [film.flying.pop(r)[1] for r, (a, _) in list(film.flying.items()) if a is actor]
+                    self.units_retried += film.retry([unit, *lost])
                     continue
                 except ray.exceptions.ObjectLostError:
                     # the unit was rendered, but its sums were on a node that left before we fetched them (an
                     # actor's task is not re-run to rebuild them: ObjectReconstructionFailedError): render it
                     # again; if its actor died with the node, its next task says so (RayActorError above)
-                    film.requeue.append(unit)
-                    film.requeue.sort()
-                    self.units_retried += 1
+                    self.units_retried += film.retry([unit])
                     continue
                 except ray.exceptions.RayTaskError as e:
                     raise _as_render_error(_cause(e)) from None
@@ -379,6 +374,12 @@ class FarmFilm:
         q = min(horizon, (p // u + 1) * u)
         self.issued = q
         return p, q - p
+
+    def retry(self, units: list[tuple[int, int]]) -> int:
+        """Hand ``units`` out again before any new one, in pass order; returns how many."""
+        self.requeue.extend(units)
+        self.requeue.sort()
+        return len(units)
 
     def add_unit(self, first: int, sums: PassSum) -> int:
         """Take a unit's sums; returns the passes that joined the film (0 until the units before it are in)."""
