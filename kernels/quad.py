@@ -47,8 +47,10 @@ def max_abs64(v: wp.vec3d) -> wp.float64:
 
 @wp.func
 def ray_quad(o: wp.vec3d, d: wp.vec3d, center: wp.vec3d, normal: wp.vec3d, ustar: wp.vec3d, vstar: wp.vec3d,
-             tmax: wp.float64) -> wp.float64:
-    """Distance t in (0, tmax) to the two-sided parallelogram along the ray o + t d (unit d), or -1 on a miss."""
+             dual_len: wp.vec2d, tmax: wp.float64) -> wp.float64:
+    """Distance t in (0, tmax) to the two-sided parallelogram along the ray o + t d (unit d), or -1 on a miss.
+    ``dual_len`` is (|ustar|, |vstar|), stored per quad: most rays that meet a quad's plane miss the quad, and
+    their edge tolerance would cost two float64 square roots each."""
     one = wp.float64(1.0)
     dn = wp.dot(d, normal)
     oc = center - o
@@ -64,7 +66,7 @@ def ray_quad(o: wp.vec3d, d: wp.vec3d, center: wp.vec3d, normal: wp.vec3d, ustar
         return t
     # near an edge (or a clear miss): accept within the rounding error of the hit point and of the quad's data
     err = QUAD_TOL * ((max_abs64(oc) + t) / wp.abs(dn) + max_abs64(center))
-    if s <= one + QUAD_TOL + err * wp.length(ustar) and r <= one + QUAD_TOL + err * wp.length(vstar):
+    if s <= one + QUAD_TOL + err * dual_len[0] and r <= one + QUAD_TOL + err * dual_len[1]:
         return t
     return wp.float64(-1.0)
 
@@ -78,16 +80,14 @@ def quad_hit(scene: SceneData, o: wp.vec3d, d: wp.vec3d, t: wp.float64, i: int) 
     local = t * d - (c - o)
     # Kept INSIDE_ULPS float32 ulps inside the edges (as triangle hits are, kernels/mesh.py: inside_point): the
     # float32 point must not round beyond the plane of the adjacent face, or a ray spawned there starts outside it.
-    # (A cube of half-size 1e-4 around the camera leaked 32 pixels in 18432 without this.)
-    area = wp.length(wp.cross(hu, hv))
-    e = wp.float64(INSIDE_ULPS * FLT_EPS * scene.quad_scale[i])
-    lim_s = wp.float64(1.0) - e * wp.length(hv) / area
-    lim_r = wp.float64(1.0) - e * wp.length(hu) / area
-    s = wp.clamp(wp.dot(local, scene.quad_ustar[i]), -lim_s, lim_s)
-    r = wp.clamp(wp.dot(local, scene.quad_vstar[i]), -lim_r, lim_r)
-    if lim_s <= wp.float64(0.5):
+    # (A cube of half-size 1e-4 around the camera leaked 32 pixels in 18432 without this.) The limits are the
+    # quad's own (``quad_inside``, pathtracer/device_scene.py: quad_inside).
+    lim = scene.quad_inside[i]
+    s = wp.clamp(wp.dot(local, scene.quad_ustar[i]), -lim[0], lim[0])
+    r = wp.clamp(wp.dot(local, scene.quad_vstar[i]), -lim[1], lim[1])
+    if lim[0] <= wp.float64(0.5):
         s = wp.float64(0.0)
-    if lim_r <= wp.float64(0.5):
+    if lim[1] <= wp.float64(0.5):
         r = wp.float64(0.0)
     h = Hit()
     h.t = float(t)
@@ -144,7 +144,7 @@ def nearest_quad(scene: SceneData, o: wp.vec3d, d: wp.vec3d, tmax: wp.float64, s
             elif best_is_light:
                 limit = best.t * (wp.float64(1.0) - COPLANAR_TOL)
             tq = ray_quad(o, d, scene.quad_center[i], scene.quad_normal[i], scene.quad_ustar[i], scene.quad_vstar[i],
-                          limit)
+                          scene.quad_dual_len[i], limit)
             if tq > wp.float64(0.0):
                 best.t = tq
                 best.index = i
@@ -169,7 +169,7 @@ def occluded_quads(scene: SceneData, o: wp.vec3, d: wp.vec3, tmax: float, skip_a
                 continue
         if i != skip_a and i != skip_b:
             if ray_quad(o64, d64, scene.quad_center[i], scene.quad_normal[i], scene.quad_ustar[i],
-                        scene.quad_vstar[i], tmax64) > wp.float64(0.0):
+                        scene.quad_vstar[i], scene.quad_dual_len[i], tmax64) > wp.float64(0.0):
                 return True
         i += 1
     return False

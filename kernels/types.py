@@ -51,6 +51,8 @@ class SceneData:
     quad_half_v: wp.array(dtype=wp.vec3d)
     quad_ustar: wp.array(dtype=wp.vec3d)  # dual basis: s = (p - center) . ustar
     quad_vstar: wp.array(dtype=wp.vec3d)
+    quad_dual_len: wp.array(dtype=wp.vec2d)  # (|ustar|, |vstar|): ray_quad's edge tolerance
+    quad_inside: wp.array(dtype=wp.vec2d)  # bounds on |s|, |r| of a hit record (kernels/quad.py: quad_hit)
     quad_scale: wp.array(dtype=float)  # largest absolute corner coordinate (for ray offsets)
     quad_material: wp.array(dtype=wp.int32)
     quad_light: wp.array(dtype=wp.int32)  # area light index, -1 if the quad does not emit

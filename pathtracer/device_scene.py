@@ -11,6 +11,8 @@ import warp as wp
 
 from kernels.integrator import LIGHT_SAMPLINGS, RR_RULES, SAMPLERS, TRIANGLES, VIEWS, Features
 from kernels.bsdfs import DISTRIBUTIONS
+from kernels.mesh import INSIDE_ULPS
+from kernels.offset import FLT_EPS
 from kernels.types import CameraData, SceneData
 from kernels.triangle import STACK_SIZE, STACK_SLACK
 from pathtracer.bvh import BoxTree, WideTree, build_tree, collapse_wide, leaf_lanes
@@ -29,6 +31,21 @@ def _vec3(a, device) -> wp.array:
 
 def _vec3d(a, device) -> wp.array:
     return wp.array(np.asarray(a, dtype=np.float64).reshape(-1, 3), dtype=wp.vec3d, device=device)
+
+
+def _vec2d(a, device) -> wp.array:
+    return wp.array(np.asarray(a, dtype=np.float64).reshape(-1, 2), dtype=wp.vec2d, device=device)
+
+
+def quad_inside(half_u: np.ndarray, half_v: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """(n, 2) bounds on |s|, |r| of a quad's hit records (kernels/quad.py: quad_hit): INSIDE_ULPS float32 ulps of
+    the quad's coordinates (``scale``, float32 as on the device) inside each edge, measured across the edge."""
+    e = (np.float32(INSIDE_ULPS) * np.float32(FLT_EPS)
+         * np.asarray(scale, dtype=np.float32)).astype(np.float64)
+    area = np.linalg.norm(np.cross(half_u, half_v), axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.stack([1.0 - e * np.linalg.norm(half_v, axis=1) / area,
+                         1.0 - e * np.linalg.norm(half_u, axis=1) / area], axis=1).reshape(-1, 2)
 
 
 def _arr(a, dtype, device) -> wp.array:
@@ -313,6 +330,9 @@ class DeviceScene:
         d.quad_ustar = _vec3d(np.cross(half_v, normal) / det, device)
         d.quad_vstar = _vec3d(np.cross(normal, half_u) / det, device)
         d.quad_scale = _arr([q.scale for q in quads], wp.float32, device)
+        d.quad_dual_len = _vec2d(np.stack([np.linalg.norm(d.quad_ustar.numpy(), axis=1),
+                                           np.linalg.norm(d.quad_vstar.numpy(), axis=1)], axis=1), device)
+        d.quad_inside = _vec2d(quad_inside(half_u, half_v, d.quad_scale.numpy()), device)
         d.quad_material = _arr([q.material for q in quads], wp.int32, device)
         d.quad_light = _arr([q.light for q in quads], wp.int32, device)
         uvs = np.array([q.uv if q.uv is not None else np.zeros((3, 2)) for q in quads], dtype=np.float32).reshape(-1, 2)

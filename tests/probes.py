@@ -312,7 +312,7 @@ def probe_quads(
     o64 = wp.vec3d(o[i])
     d64 = wp.vec3d(d[i])
     out_t_direct[i] = float(ray_quad(o64, d64, scene.quad_center[k], scene.quad_normal[k], scene.quad_ustar[k],
-                               scene.quad_vstar[k], wp.float64(tmax[i])))
+                               scene.quad_vstar[k], scene.quad_dual_len[k], wp.float64(tmax[i])))
     nq = nearest_quad(scene, o64, d64, wp.float64(float(INF)), -1)
     best = nq.index
     t_best = nq.t
@@ -328,7 +328,8 @@ def probe_quads(
         o2_64 = wp.vec3d(o2)
         w64 = wp.vec3d(w[i])
         out_self_t[i] = float(ray_quad(o2_64, w64, scene.quad_center[best], scene.quad_normal[best],
-                                       scene.quad_ustar[best], scene.quad_vstar[best], wp.float64(INF)))
+                                       scene.quad_ustar[best], scene.quad_vstar[best], scene.quad_dual_len[best],
+                                       wp.float64(INF)))
         out_q2[i] = nearest_quad(scene, o2_64, w64, wp.float64(float(INF)), best).index
 
 
