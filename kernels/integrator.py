@@ -779,6 +779,8 @@ def make_render_kernel(features: Features):
                             dL += (wp.cw_mul(d_albedo, Ld) + wp.cw_mul(wp.cw_mul(beta, albedo), dLd)) * (1.0 / wp.pi)
 
                     # ---------------- bounce: cosine-weighted (diffuse), or the BSDF's own sampling ----------
+                    if kind == MAT_DIFFUSE and params.max_depth >= 0 and depth + 2 >= params.max_depth:
+                        break  # the next vertex would be the last, and emission after a diffuse bounce never counts
                     u = wp.static(draw4)(key, dim, depth)
                     dim += wp.uint32(1)
                     count_emission = False
@@ -809,6 +811,12 @@ def make_render_kernel(features: Features):
                         dbeta += beta
                 beta = wp.cw_mul(beta, weight)
                 depth += 1
+                # The vertex this ray would reach is the last: it adds only emission, and that only where it
+                # counts. After a bounce whose emission does not count (diffuse, and the BSDFs sampled with
+                # next-event estimation but for their delta lobes) nothing would come of it, so the ray is not
+                # traced: in a closed diffuse box one ray in four at max_depth 4, the image unchanged bit for bit.
+                if not count_emission and params.max_depth >= 0 and depth + 1 >= params.max_depth:
+                    break
 
                 # ---------------- Russian roulette ----------------
                 if wp.static(RR == RR_SEED):

@@ -467,6 +467,18 @@ def test_triangle_backend_compiles_only_its_own_traversal():
         Renderer(scene, device="cpu", triangles="embree")
 
 
+
+def test_no_ray_is_traced_to_a_last_vertex_that_cannot_count():
+    """After a diffuse bounce the next vertex's emission never counts (next-event estimation took it), so where
+    that vertex would be the last, its ray is neither sampled nor traced. In the diffuse box (one light, one light
+    sample) a path of max_depth m is then at most m - 1 nearest-hit rays and m - 1 shadow rays: at max_depth 2 a
+    camera ray and a shadow ray (before, the bounce ray too: 2.23 rays per sample on the Cornell box)."""
+    scene = box_scene()
+    n = 4 * scene.width * scene.height
+    for max_depth, bound in ((1, 1), (2, 2), (3, 4)):
+        ps = Renderer(scene, device="cpu", count_rays=True, max_depth=max_depth).render_passes(seed=1, count=4)
+        assert n <= ps.rays <= bound * n, (max_depth, ps.rays / n)
+
 # ------------------------------------------------------------------------------------------------
 # non-finite samples
 
