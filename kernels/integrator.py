@@ -16,8 +16,9 @@ With ``light_tracing``, paths camera -> diffuse first hit -> any bounces -> one 
 the light tracer (kernels/light_tracer.py): their emission is not counted here (``lt_owned``).
 """
 
-from __future__ import annotations
-
+# (no ``from __future__ import annotations``: Warp would evaluate every parameter annotation of the functions made
+# per variant from its string again; with ``compiled_if`` below, making the Cornell box's kernel took 53 ms instead
+# of 64)
 import functools
 import hashlib
 from dataclasses import dataclass
@@ -288,7 +289,12 @@ def make_render_kernel(features: Features):
     trace, occluded, occluded_but_face = make_tracers(features)
     sample_bsdf, eval_nee = make_materials(features)
 
-    @wp.func
+    def compiled_if(needed: bool):
+        """``wp.func`` where this variant calls the function, else nothing: Warp parses a function's source when
+        it is decorated (milliseconds each), and a call under a false ``wp.static`` is never compiled."""
+        return wp.func if needed else (lambda f: None)
+
+    @compiled_if(BSDF_NEE or OTHER_LIGHTS)
     def nee_weight(scene: SceneData, params: PassParams, mat: int, kind: int, rgb: wp.vec3, d: wp.vec3, ns: wp.vec3,
                    w: wp.vec3, cos_x: float, g: float, delta: bool) -> wp.vec3:
         """What a light sample along ``w`` with cos_x / pdf = ``g`` is multiplied by besides Le g / K: the BSDF
@@ -303,7 +309,7 @@ def make_render_kernel(features: Features):
                 return ev.f * (p_light * p_light / (p_light * p_light + ev.pdf * ev.pdf))
         return ev.f
 
-    @wp.func
+    @compiled_if(MIS)
     def emitter_mis(scene: SceneData, params: PassParams, hit: Hit, x: wp.vec3, d: wp.vec3, pdf_bsdf: float) -> float:
         """Power-heuristic weight of emission at ``hit`` found by a glossy BSDF sample from ``x`` of density
         ``pdf_bsdf``, against the K next-event samples that could have found it (the same density as they use)."""
@@ -359,7 +365,7 @@ def make_render_kernel(features: Features):
                                              light_face)
         return not occluded(scene, so, seg / seg_len, seg_len, hit.quad, light_quad, hit.sphere, hit.ng)
 
-    @wp.func
+    @compiled_if(OTHER_LIGHTS)
     def lit(scene: SceneData, hit: Hit, ng: wp.vec3, ns: wp.vec3, y: wp.vec3, yn: wp.vec3, y_scale: float,
             w: wp.vec3, far: bool, light_face: int) -> float:
         """cos_x for light reaching the shading point along unit ``w`` from ``y`` (as ``visible``): 0 when it
@@ -371,7 +377,7 @@ def make_render_kernel(features: Features):
             return 0.0
         return cos_x
 
-    @wp.func
+    @compiled_if(OTHER_LIGHTS)
     def other_lights(scene: SceneData, params: PassParams, hit: Hit, ng: wp.vec3, ns: wp.vec3, mat: int, kind: int,
                      rgb: wp.vec3, d: wp.vec3, key: wp.vec3ui, dim: wp.uint32, depth: int) -> wp.vec3:
         """Next-event estimation of every emitter but the parallelograms: the sum of Le cos_x / pdf over the samples
