@@ -349,15 +349,17 @@ def auto_vs_fixed(scene_name: str, ref: np.ndarray, w: int, h: int, spp: int, se
     probe.close()
     runs = {"auto": {}} | {f"{label}{' lt' if lt else ''}": dict(opts, light_tracing=lt)
                            for lt in lt_options for label, opts in FIXED}
-    out = {}
-    for label, opts in runs.items():
-        errs, secs, choices = [], [], []
-        for s in range(seeds):
+    got = {label: ([], [], []) for label in runs}
+    for s in range(seeds):  # each seed's configurations side by side, so that the machine's drift falls on all alike
+        for label, opts in runs.items():
             st = {}
             img = pathtracer.render(scene, spp=spp, seed=100 + s, progress=False, stats=st, **opts)
+            errs, secs, choices = got[label]
             errs.append(rel_mse_net(img, ref, ref_var))
             secs.append(st["render_seconds"])
             choices.append(bool(st["config"].get("light_tracing")))
+    out = {}
+    for label, (errs, secs, choices) in got.items():
         e, t = float(np.mean(errs)), float(np.median(secs))
         out[label] = {"relmse": errs, "seconds": secs, "light_tracing": choices, "efficiency": 1.0 / (e * t)}
     best = max((k for k in out if k != "auto"), key=lambda k: out[k]["efficiency"])
@@ -449,7 +451,8 @@ def markdown(rows: list[Row], refs: dict, args, wall: float, compiles=None, scal
         lines += ["## Auto against the best fixed configuration", "",
                   f"Render seconds (the pilot and its loser included for auto) and relMSE against the reference, "
                   f"{args.process_spp} spp at {args.process_size[0]}x{args.process_size[1]}, the same 5 seeds for "
-                  "each configuration; efficiency = 1 / (mean relMSE x median seconds). The fixed configurations: "
+                  "each configuration (each seed's runs one after another); efficiency = 1 / (mean relMSE x "
+                  "median seconds). The fixed configurations: "
                   "light tracing on (lt) or off where the scene allows it, K = 1 or 2, area or solid-angle light "
                   "sampling.", "",
                   "| scene | auto's choice (5 seeds) | auto: s, relMSE | best fixed | its s, relMSE | auto / best |",

@@ -14,6 +14,10 @@ of deciding (about 3% of the time). Averaging it in by inverse estimated error m
 loser's error estimate is least reliable exactly where it loses (rare huge samples). The cost per pass is a
 constant measured ratio, not the pilot's wall time: the decision, hence the image, depends only on the seed, spp
 and device, never on the machine's load or the thread count.
+
+Where the pilot has at least 2 x MIN_PILOT passes, B is looked at half way: losing by more than ``EARLY_MARGIN``
+there, it renders no more (on the open sky, where it loses, its second half was 2-3% of the render). The check
+depends on the candidates' sums alone, so a resumed pilot makes it again from the same sums, or finds it made.
 """
 
 from __future__ import annotations
@@ -29,6 +33,10 @@ MIN_PILOT = 8  # ... and at least this many (two per replicate)
 # light tracing's cost per pass relative to path tracing alone, measured on the two mirror scenes and the open sky
 # (docs/performance.md: 1.4-1.6x); the decision margins there are 3-6x
 LIGHT_TRACING_COST = 1.5
+# light tracing's relMSE x cost per pass this many times path tracing's after half its pilot: it has lost. Its
+# estimate there errs low, not high (the rare huge samples that make it lose are the ones a short run misses: on the
+# open sky 1.8-2.3x path tracing's at half, 3.1-3.7x at the end, 6 seeds; the mirror scenes 0.05-0.13x at both)
+EARLY_MARGIN = 1.5
 _PILOT_SALT = 0x6C8E9CF5
 
 
@@ -79,6 +87,13 @@ def pilot_passes(spp: int, replicates: int) -> int:
     p = max(MIN_PILOT, spp // PILOT_FRACTION)
     p -= p % replicates
     return p if 4 * p <= spp and p >= 2 * replicates else 0
+
+
+def early_passes(p: int, replicates: int) -> int:
+    """Candidate B's passes at the half-way check of a pilot of ``p`` each, or 0 when the pilot is too short for one."""
+    h = p // 2
+    h -= h % replicates
+    return h if h >= MIN_PILOT and h < p else 0
 
 
 def caustic_magnitude(scene) -> float:
@@ -144,34 +159,57 @@ def run_pilot(path: Renderer, traced: Renderer, seed: int, spp: int, progress=Fa
     seed_b = pilot_seed(seed)
     fa, fb = films if films is not None else (path.new_film(), traced.new_film())
     seeds = {"path": seed, "light_tracing": seed_b}
+    h = early_passes(p, path.replicates)
+    # B's passes before its check (a resumed pilot past the check has made it already, and B went on)
+    first_b = h if h and fb.passes <= h else p
+
+    def stopped():
+        return stop is not None and stop.is_set()
+
     if hasattr(path, "start"):  # the Ray farm: both candidates' units handed out before waiting for either
         if fa.passes < p:
             path.start(fa, seed, fa.next_pass, p - fa.passes)
-        if fb.passes < p:
-            traced.start(fb, seed_b, fb.next_pass, p - fb.passes)
-    for renderer, film, s in ((path, fa, seed), (traced, fb, seed_b)):
-        if film.passes < p and not (stop is not None and stop.is_set()):
-            renderer.render_into(film, s, film.next_pass, p - film.passes, progress, stop=stop)
-    if fa.passes < p or fb.passes < p:
+        if fb.passes < first_b:
+            traced.start(fb, seed_b, fb.next_pass, first_b - fb.passes)
+    for renderer, film, s, n in ((path, fa, seed, p), (traced, fb, seed_b, first_b)):
+        if film.passes < n and not stopped():
+            renderer.render_into(film, s, film.next_pass, n - film.passes, progress, stop=stop)
+    lost_early, at_half = False, None
+    if fa.passes == p and fb.passes == first_b and first_b < p:  # the half-way check
+        cost, measured, predicted = _costs(fa.sums(), fb.sums(), path.scene)
+        lost_early = cost["light_tracing"] > EARLY_MARGIN * cost["path"]
+        at_half = {k: float(v) for k, v in cost.items()}
+        if not lost_early and not stopped():
+            traced.render_into(fb, seed_b, fb.next_pass, p - fb.passes, progress, stop=stop)
+    if fa.passes < p or (fb.passes < p and not lost_early):
         config = {"light_tracing": False, "pilot": {"passes_each": p, "unfinished": True,
                                                      "passes_done": {"path": fa.passes, "light_tracing": fb.passes}}}
         return Pilot(False, {"path": fa, "light_tracing": fb}, seeds, p, config, finished=False)
+    if not lost_early:
+        cost, measured, predicted = _costs(fa.sums(), fb.sums(), path.scene)
     a, b = fa.sums(), fb.sums()
-    # relMSE x cost per pass of each candidate: path tracing's measured or, where the pilot cannot have seen its
-    # rare caustic samples, predicted from the light tracer's view of them (whichever is larger)
-    predicted = predicted_path_error(b, caustic_magnitude(path.scene))
-    measured = a.relmse_estimate * p
-    cost = {"path": max(measured, predicted),
-            "light_tracing": b.relmse_estimate * p * LIGHT_TRACING_COST}
     use_lt = cost["light_tracing"] < cost["path"]
     # the loser's pilot is not averaged in: it lost because its error is larger, and its own estimate of that error
     # is least reliable exactly then (light tracing's rare huge samples on the open sky): weighted by it, the image
     # came out 16% noisier there than path tracing alone
     weights = [0.0, 1.0] if use_lt else [1.0, 0.0]
     config = {"light_tracing": use_lt, "pilot": {
-        "passes_each": p, "light_tracing_cost_ratio": LIGHT_TRACING_COST,
+        "passes_each": p, "light_tracing_passes": fb.passes, "lost_at_half": lost_early,
+        "relmse_x_cost_per_pass_at_half": at_half,
+        "light_tracing_cost_ratio": LIGHT_TRACING_COST,
         "relmse_x_cost_per_pass": {k: float(v) for k, v in cost.items()},
         "path_measured": float(measured), "path_predicted": predicted,
         "pilot_seconds": {"path": a.seconds, "light_tracing": b.seconds},
         "weights": {"path": weights[0], "light_tracing": weights[1]}}}
     return Pilot(use_lt, {"path": fa, "light_tracing": fb}, seeds, p, config)
+
+
+def _costs(a: PassSum, b: PassSum, scene) -> tuple[dict, float, float]:
+    """relMSE x cost per pass of each candidate (A: path tracing, B: with light tracing), from their pilot sums:
+    path tracing's measured or, where the pilot cannot have seen its rare caustic samples, predicted from the
+    light tracer's view of them (whichever is larger). Also returns those two figures."""
+    predicted = predicted_path_error(b, caustic_magnitude(scene))
+    measured = a.relmse_estimate * a.passes
+    cost = {"path": max(measured, predicted),
+            "light_tracing": b.relmse_estimate * b.passes * LIGHT_TRACING_COST}
+    return cost, measured, predicted

@@ -114,6 +114,33 @@ def test_a_stop_during_the_pilot_keeps_both_candidates_and_resumes_bit_identical
     assert st3["config"]["pilot"]["relmse_x_cost_per_pass"] == full_st["config"]["pilot"]["relmse_x_cost_per_pass"]
 
 
+def test_a_stop_around_the_pilots_half_way_check_resumes_bit_identical(tmp_path):
+    """The open sky at 512 spp: light tracing is checked after 8 of its 16 pilot passes and, losing, renders no
+    more. Stopped before B's first pass or among B's first passes, the resume makes the check from the same sums;
+    stopped after it, the resume goes on with the decision made. Each ends on the uninterrupted image, having
+    rendered B's 8 passes only."""
+    scene = small("open_sky", 128, 64)  # 4 passes a launch: A's 16 take four launches, B's 8 two
+    full_st: dict = {}
+    full = pathtracer.render(scene, spp=512, seed=5, progress=False, threads=1, stats=full_st)
+    assert full_st["config"]["pilot"]["lost_at_half"]
+    stages = set()
+    for n in (6, 7, 8):  # stopped after A's 16 passes, after 4 of B's, after B's 8 (the pilot decided)
+        ck = tmp_path / f"ck{n}.npz"
+        st: dict = {}
+        pathtracer.render(scene, spp=512, seed=5, progress=False, threads=1, checkpoint=ck, stop=StopAfterLooks(n),
+                          stats=st)
+        pilot = st["config"]["pilot"]
+        assert st["stop_reason"] == "interrupted" and st["spp"] >= 16, st
+        stages.add(pilot["passes_done"]["light_tracing"] if pilot.get("unfinished") else "decided")
+        st2: dict = {}
+        resumed = pathtracer.render(scene, spp=512, seed=5, progress=False, threads=1, checkpoint=ck, resume=True,
+                                    stats=st2)
+        assert st2["config"]["pilot"]["lost_at_half"] and st2["config"]["pilot"]["light_tracing_passes"] == 8
+        assert st2["config"]["pilot"]["relmse_x_cost_per_pass"] == full_st["config"]["pilot"]["relmse_x_cost_per_pass"]
+        assert np.array_equal(resumed, full), f"stopped after {n} looks"
+    assert stages == {0, 4, "decided"}, stages
+
+
 def test_checkpoints_and_unit_sizes_do_not_change_the_image(tmp_path):
     scene = small("teapot_in_box")
     plain = pathtracer.render(scene, spp=40, seed=2, progress=False)

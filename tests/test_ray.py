@@ -109,14 +109,20 @@ def test_the_image_does_not_depend_on_the_number_of_workers(cluster, farm_image)
     assert np.array_equal(img, farm_image)
 
 
-def test_pilot_on_the_farm_decides_as_one_process(cluster):
-    scene = small("cornell_box_mirror")  # auto: a pilot of both candidates, run side by side on the workers
+@pytest.mark.parametrize("name,spp", [("cornell_box_mirror", 256), ("open_sky", 512)])
+def test_pilot_on_the_farm_decides_as_one_process(cluster, name, spp):
+    """auto: a pilot of both candidates, run side by side on the workers; on the open sky at 512 spp light tracing
+    loses at the half-way check and renders only half its pilot, on the farm as in one process."""
+    scene = small(name)
     local: dict = {}
-    a = pathtracer.render(scene, spp=256, seed=1, progress=False, stats=local)
+    a = pathtracer.render(scene, spp=spp, seed=1, progress=False, stats=local)
     with executor() as ex:
         farm: dict = {}
-        b = pathtracer.render(scene, spp=256, seed=1, progress=False, executor=ex, stats=farm)
+        b = pathtracer.render(scene, spp=spp, seed=1, progress=False, executor=ex, stats=farm)
     assert farm["config"]["light_tracing"] == local["config"]["light_tracing"]
+    for key in ("lost_at_half", "light_tracing_passes"):
+        assert farm["config"]["pilot"][key] == local["config"]["pilot"][key]
+    assert local["config"]["pilot"]["lost_at_half"] is (name == "open_sky")
     assert farm["config"]["pilot"]["relmse_x_cost_per_pass"] == pytest.approx(
         local["config"]["pilot"]["relmse_x_cost_per_pass"], rel=1e-6)
     np.testing.assert_array_max_ulp(a, b, maxulp=1)
